@@ -1,0 +1,592 @@
+//! Structural similarity (SSIM) and its analytic gradient.
+//!
+//! The definition follows the 3DGS / mip-NeRF evaluation code: an 11×11 normalised Gaussian
+//! window with σ = 1.5 applied per channel with zero padding (torch `conv2d(padding = 5)`),
+//! `C1 = 0.01²`, `C2 = 0.03²`,
+//!
+//! ```text
+//! map = ((2μxμy + C1)(2σxy + C2)) / ((μx² + μy² + C1)(σx² + σy² + C2))
+//! ```
+//!
+//! with `μx = G∗x`, `σx² = G∗x² − μx²`, `σxy = G∗(xy) − μxμy`, and SSIM the mean of the map
+//! over all pixels and channels. The 2-D window is the outer product of a 1-D Gaussian, so it is
+//! applied as two 1-D passes (rows, then columns), each parallel over rows with rayon.
+//!
+//! # Gradient
+//!
+//! With `N` the number of pixel-channels, `A = 2μxμy + C1`, `B = 2σxy + C2`,
+//! `C = μx² + μy² + C1`, `D = σx² + σy² + C2` and `m = AB/(CD)`, the partial derivatives of one
+//! map value w.r.t. the local statistics are
+//!
+//! ```text
+//! ∂m/∂μx  = 2μy·B/(CD) − 2μx·m/C      (σ's held fixed)
+//! ∂m/∂σx² = −m/D
+//! ∂m/∂σxy = 2A/(CD)
+//! ```
+//!
+//! Rewriting in terms of the blurred moments `μx`, `Exx = G∗x²`, `Exy = G∗(xy)` (`σx² = Exx − μx²`,
+//! `σxy = Exy − μxμy`) gives per pixel
+//!
+//! ```text
+//! gμ = ∂m/∂μx − 2μx·∂m/∂σx² − μy·∂m/∂σxy,   gxx = ∂m/∂σx²,   gxy = ∂m/∂σxy
+//! ```
+//!
+//! (all divided by `N`). The blur with zero padding is the linear map
+//! `(Gf)(p) = Σ_q g(p − q) f(q)` over in-image `q`; its adjoint is `Σ_p g(p − q) f(p)` over
+//! in-image `p`, which is the same zero-padded blur because `g` is symmetric. Hence
+//!
+//! ```text
+//! dSSIM/dx(q) = (G gμ)(q) + 2·x(q)·(G gxx)(q) + y(q)·(G gxy)(q).
+//! ```
+
+use rayon::prelude::*;
+
+use super::{assert_mask_size, assert_same_size};
+use crate::io::image::Image;
+
+/// Side of the Gaussian window.
+const WIN: usize = 11;
+/// Half-width of the window (the zero padding).
+const RADIUS: usize = WIN / 2;
+/// Standard deviation of the Gaussian window.
+const SIGMA: f64 = 1.5;
+/// Stabilising constant of the luminance term, `(0.01·L)²` with `L = 1`.
+const C1: f32 = 0.01 * 0.01;
+/// Stabilising constant of the contrast/structure term, `(0.03·L)²` with `L = 1`.
+const C2: f32 = 0.03 * 0.03;
+
+/// Number of blurred statistics per pixel: μx, μy, E[x²], E[y²], E[xy] for 3 channels.
+const NSTAT: usize = 15;
+/// Number of gradient maps per pixel: gμ, gxx, gxy for 3 channels.
+const NGRAD: usize = 9;
+
+/// Normalised 1-D Gaussian window (computed in `f64`, stored as `f32`).
+fn gaussian_window() -> [f32; WIN] {
+    let raw: [f64; WIN] = std::array::from_fn(|i| {
+        let d = i as f64 - RADIUS as f64;
+        (-(d * d) / (2.0 * SIGMA * SIGMA)).exp()
+    });
+    let sum: f64 = raw.iter().sum();
+    raw.map(|v| (v / sum) as f32)
+}
+
+/// Reusable buffers for SSIM evaluation; repeated calls at the same image size allocate nothing
+/// (buffers are resized only when the image size changes).
+#[derive(Clone, Debug)]
+pub struct SsimScratch {
+    /// 1-D Gaussian window.
+    window: [f32; WIN],
+    /// Per-pixel moments (input of the blur, then the blurred statistics).
+    stats: Vec<[f32; NSTAT]>,
+    /// Intermediate of the separable blur of `stats`.
+    stats_tmp: Vec<[f32; NSTAT]>,
+    /// Per-pixel gradient w.r.t. the blurred statistics, then its blur.
+    grad: Vec<[f32; NGRAD]>,
+    /// Intermediate of the separable blur of `grad`.
+    grad_tmp: Vec<[f32; NGRAD]>,
+    /// SSIM map per pixel, averaged over channels.
+    map: Vec<f32>,
+    /// Per-row sums of the map over pixels and channels (summed in a fixed order afterwards so
+    /// the result does not depend on thread scheduling).
+    row_sums: Vec<f64>,
+}
+
+impl Default for SsimScratch {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl SsimScratch {
+    /// Empty scratch space; buffers are allocated on first use.
+    pub fn new() -> Self {
+        Self {
+            window: gaussian_window(),
+            stats: Vec::new(),
+            stats_tmp: Vec::new(),
+            grad: Vec::new(),
+            grad_tmp: Vec::new(),
+            map: Vec::new(),
+            row_sums: Vec::new(),
+        }
+    }
+
+    /// Per-pixel SSIM map (averaged over channels) of the last evaluation.
+    pub fn map(&self) -> &[f32] {
+        &self.map
+    }
+}
+
+/// Separable zero-padded Gaussian blur of a `w × h` field of `K`-vectors, in place in `buf`
+/// (`tmp` receives the horizontal pass). Both slices must have length `w·h > 0`.
+fn blur<const K: usize>(
+    buf: &mut [[f32; K]],
+    tmp: &mut [[f32; K]],
+    w: usize,
+    h: usize,
+    g: &[f32; WIN],
+) {
+    debug_assert!(w > 0 && h > 0 && buf.len() == w * h && tmp.len() == w * h);
+    // Horizontal pass: tmp(x, y) = Σ_q g[q − x + R] buf(q, y) over in-image q.
+    tmp.par_chunks_mut(w)
+        .zip(buf.par_chunks(w))
+        .for_each(|(out, row)| {
+            for (x, o) in out.iter_mut().enumerate() {
+                let lo = x.saturating_sub(RADIUS);
+                let hi = (x + RADIUS).min(w - 1);
+                let mut acc = [0.0f32; K];
+                for (q, v) in row.iter().enumerate().take(hi + 1).skip(lo) {
+                    let wgt = g[q + RADIUS - x];
+                    for c in 0..K {
+                        acc[c] += wgt * v[c];
+                    }
+                }
+                *o = acc;
+            }
+        });
+    // Vertical pass: buf(x, y) = Σ_q g[q − y + R] tmp(x, q) over in-image rows q.
+    let tmp: &[[f32; K]] = tmp;
+    buf.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
+        out.fill([0.0; K]);
+        let lo = y.saturating_sub(RADIUS);
+        let hi = (y + RADIUS).min(h - 1);
+        for q in lo..=hi {
+            let wgt = g[q + RADIUS - y];
+            let src = &tmp[q * w..(q + 1) * w];
+            for (o, v) in out.iter_mut().zip(src) {
+                for c in 0..K {
+                    o[c] += wgt * v[c];
+                }
+            }
+        }
+    });
+}
+
+/// Core evaluation: fills `scratch.map`, returns the mean SSIM, and, when `d_img` is given,
+/// writes dSSIM/d(img) into it.
+fn evaluate(
+    scratch: &mut SsimScratch,
+    img: &Image,
+    gt: &Image,
+    d_img: Option<&mut [[f32; 3]]>,
+) -> f32 {
+    assert_same_size(img, gt);
+    let (w, h) = (img.width, img.height);
+    let n = w * h;
+    if let Some(d) = d_img.as_deref() {
+        assert_eq!(
+            d.len(),
+            n,
+            "ssim_with_grad: gradient buffer length does not match the image"
+        );
+    }
+    scratch.map.resize(n, 0.0);
+    if n == 0 {
+        return 1.0;
+    }
+    let SsimScratch {
+        window,
+        stats,
+        stats_tmp,
+        grad,
+        grad_tmp,
+        map,
+        row_sums,
+    } = scratch;
+    let g = &*window;
+    stats.resize(n, [0.0; NSTAT]);
+    stats_tmp.resize(n, [0.0; NSTAT]);
+    row_sums.resize(h, 0.0);
+
+    // Per-pixel moments, then their blur.
+    stats
+        .par_chunks_mut(w)
+        .zip(img.data.par_chunks(w))
+        .zip(gt.data.par_chunks(w))
+        .for_each(|((out, xs), ys)| {
+            for ((s, x), y) in out.iter_mut().zip(xs).zip(ys) {
+                for c in 0..3 {
+                    s[c] = x[c];
+                    s[3 + c] = y[c];
+                    s[6 + c] = x[c] * x[c];
+                    s[9 + c] = y[c] * y[c];
+                    s[12 + c] = x[c] * y[c];
+                }
+            }
+        });
+    blur(stats, stats_tmp, w, h, g);
+
+    let want_grad = d_img.is_some();
+    if want_grad {
+        grad.resize(n, [0.0; NGRAD]);
+        grad_tmp.resize(n, [0.0; NGRAD]);
+    }
+    // Scale of the mean: every map value contributes 1/(3n).
+    let inv_count = 1.0 / (3 * n) as f32;
+    let stats: &[[f32; NSTAT]] = stats;
+    let per_row = map
+        .par_chunks_mut(w)
+        .zip(row_sums.par_iter_mut())
+        .zip(stats.par_chunks(w));
+    let map_row = |((map_row, row_sum), st): ((&mut [f32], &mut f64), &[[f32; NSTAT]]),
+                   mut grad_row: Option<&mut [[f32; NGRAD]]>| {
+        let mut sum = 0.0f64;
+        for (i, s) in st.iter().enumerate() {
+            let mut pix = 0.0f32;
+            for c in 0..3 {
+                let (mx, my) = (s[c], s[3 + c]);
+                let sxx = s[6 + c] - mx * mx;
+                let syy = s[9 + c] - my * my;
+                let sxy = s[12 + c] - mx * my;
+                let a = 2.0 * mx * my + C1;
+                let b = 2.0 * sxy + C2;
+                let cc = mx * mx + my * my + C1;
+                let d = sxx + syy + C2;
+                let inv_cd = 1.0 / (cc * d);
+                let m = a * b * inv_cd;
+                pix += m;
+                if let Some(gr) = grad_row.as_deref_mut() {
+                    let dm_dmx = 2.0 * my * b * inv_cd - 2.0 * mx * m / cc;
+                    let dm_dsxx = -m / d;
+                    let dm_dsxy = 2.0 * a * inv_cd;
+                    gr[i][c] = (dm_dmx - 2.0 * mx * dm_dsxx - my * dm_dsxy) * inv_count;
+                    gr[i][3 + c] = dm_dsxx * inv_count;
+                    gr[i][6 + c] = dm_dsxy * inv_count;
+                }
+            }
+            sum += pix as f64;
+            map_row[i] = pix / 3.0;
+        }
+        *row_sum = sum;
+    };
+    if want_grad {
+        per_row
+            .zip(grad.par_chunks_mut(w))
+            .for_each(|(r, gr)| map_row(r, Some(gr)));
+    } else {
+        per_row.for_each(|r| map_row(r, None));
+    }
+    let mean = (row_sums.iter().sum::<f64>() / (3 * n) as f64) as f32;
+
+    if let Some(d_img) = d_img {
+        blur(grad, grad_tmp, w, h, g);
+        let grad: &[[f32; NGRAD]] = grad;
+        d_img
+            .par_chunks_mut(w)
+            .zip(grad.par_chunks(w))
+            .zip(img.data.par_chunks(w))
+            .zip(gt.data.par_chunks(w))
+            .for_each(|(((out, gb), xs), ys)| {
+                for (((o, gb), x), y) in out.iter_mut().zip(gb).zip(xs).zip(ys) {
+                    for c in 0..3 {
+                        o[c] = gb[c] + 2.0 * x[c] * gb[3 + c] + y[c] * gb[6 + c];
+                    }
+                }
+            });
+    }
+    mean
+}
+
+/// Mean SSIM of `a` against `b` (convenience wrapper that allocates its own scratch space).
+///
+/// Panics if the images differ in size. Empty images give 1.
+pub fn ssim(a: &Image, b: &Image) -> f32 {
+    evaluate(&mut SsimScratch::new(), a, b, None)
+}
+
+/// Mean SSIM of `a` against `b` using reusable buffers (no allocation at an unchanged size);
+/// the per-pixel map is available afterwards through [`SsimScratch::map`].
+pub fn ssim_with_scratch(scratch: &mut SsimScratch, a: &Image, b: &Image) -> f32 {
+    evaluate(scratch, a, b, None)
+}
+
+/// Per-pixel SSIM map (row-major, averaged over the three channels).
+pub fn ssim_map(a: &Image, b: &Image) -> Vec<f32> {
+    let mut scratch = SsimScratch::new();
+    evaluate(&mut scratch, a, b, None);
+    scratch.map
+}
+
+/// Mean of the SSIM map over the pixels where `mask` is true; `None` when no pixel is selected.
+///
+/// Note that the map values near masked pixels still see their unmasked neighbours through the
+/// window. Panics if the images differ in size or the mask length is not `width·height`.
+pub fn masked_ssim(a: &Image, b: &Image, mask: &[bool]) -> Option<f32> {
+    assert_mask_size(a, mask);
+    let map = ssim_map(a, b);
+    let (sum, count) = map
+        .iter()
+        .zip(mask)
+        .filter(|&(_, &m)| m)
+        .fold((0.0f64, 0usize), |(s, k), (&v, _)| (s + v as f64, k + 1));
+    (count > 0).then(|| (sum / count as f64) as f32)
+}
+
+/// Mean SSIM of `img` against the constant `gt`, writing dSSIM/d(img) (gradient of the mean over
+/// all pixels and channels) into `d_img`, which must have `width·height` entries.
+///
+/// Panics if the images differ in size or `d_img` has the wrong length.
+pub fn ssim_with_grad(
+    scratch: &mut SsimScratch,
+    img: &Image,
+    gt: &Image,
+    d_img: &mut [[f32; 3]],
+) -> f32 {
+    evaluate(scratch, img, gt, Some(d_img))
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// Deterministic pseudo-random image with channels in [0, 1).
+    pub(crate) fn noisy(w: usize, h: usize, seed: u32) -> Image {
+        let mut s = seed.wrapping_mul(2654435761).wrapping_add(12345);
+        let mut next = || {
+            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+            (s >> 8) as f32 / (1u32 << 24) as f32
+        };
+        Image {
+            width: w,
+            height: h,
+            data: (0..w * h).map(|_| [next(), next(), next()]).collect(),
+        }
+    }
+
+    /// Direct (non-separable) double-loop SSIM map in `f64`, per pixel and channel, written
+    /// independently of the implementation above: explicit 2-D window, explicit zero padding.
+    pub(crate) fn reference_map(
+        x: &[[f64; 3]],
+        y: &[[f64; 3]],
+        w: usize,
+        h: usize,
+    ) -> Vec<[f64; 3]> {
+        let g1: Vec<f64> = (0..11)
+            .map(|i| (-((i as f64 - 5.0).powi(2)) / 4.5).exp())
+            .collect();
+        let s: f64 = g1.iter().sum();
+        let g1: Vec<f64> = g1.iter().map(|v| v / s).collect();
+        let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
+        let mut out = vec![[0.0; 3]; w * h];
+        for py in 0..h as isize {
+            for px in 0..w as isize {
+                for c in 0..3 {
+                    let (mut mx, mut my, mut exx, mut eyy, mut exy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                    for dy in -5isize..=5 {
+                        for dx in -5isize..=5 {
+                            let (qx, qy) = (px + dx, py + dy);
+                            if qx < 0 || qy < 0 || qx >= w as isize || qy >= h as isize {
+                                continue; // zero padding
+                            }
+                            let wgt = g1[(dx + 5) as usize] * g1[(dy + 5) as usize];
+                            let i = qy as usize * w + qx as usize;
+                            let (a, b) = (x[i][c], y[i][c]);
+                            mx += wgt * a;
+                            my += wgt * b;
+                            exx += wgt * a * a;
+                            eyy += wgt * b * b;
+                            exy += wgt * a * b;
+                        }
+                    }
+                    let (sxx, syy, sxy) = (exx - mx * mx, eyy - my * my, exy - mx * my);
+                    out[py as usize * w + px as usize][c] = ((2.0 * mx * my + c1)
+                        * (2.0 * sxy + c2))
+                        / ((mx * mx + my * my + c1) * (sxx + syy + c2));
+                }
+            }
+        }
+        out
+    }
+
+    /// Mean of [`reference_map`].
+    pub(crate) fn reference_ssim(x: &[[f64; 3]], y: &[[f64; 3]], w: usize, h: usize) -> f64 {
+        let m = reference_map(x, y, w, h);
+        m.iter().flatten().sum::<f64>() / (3 * w * h) as f64
+    }
+
+    pub(crate) fn to_f64(img: &Image) -> Vec<[f64; 3]> {
+        img.data.iter().map(|p| p.map(|v| v as f64)).collect()
+    }
+
+    #[test]
+    fn window_is_normalised_and_symmetric() {
+        let g = gaussian_window();
+        assert!((g.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        for i in 0..WIN {
+            assert_eq!(g[i], g[WIN - 1 - i]);
+        }
+        assert!(g[RADIUS] > g[RADIUS - 1]);
+    }
+
+    #[test]
+    fn self_similarity_is_one() {
+        for (w, h) in [(13, 9), (32, 20), (3, 2), (1, 1)] {
+            let a = noisy(w, h, 7);
+            let s = ssim(&a, &a);
+            assert!((s - 1.0).abs() < 1e-5, "{w}x{h}: {s}");
+            assert!(ssim_map(&a, &a).iter().all(|v| (v - 1.0).abs() < 1e-4));
+        }
+    }
+
+    #[test]
+    fn constant_images_interior_value() {
+        // Constant images: away from the borders (≥ 5 px) the window lies fully inside, so
+        // σ's vanish and the map is the luminance term (2·c1·c2 + C1)/(c1² + c2² + C1).
+        let (w, h) = (25, 23);
+        let (a, b) = (0.3f32, 0.7f32);
+        let map = ssim_map(&Image::filled(w, h, [a; 3]), &Image::filled(w, h, [b; 3]));
+        let expected = (2.0 * a * b + C1) / (a * a + b * b + C1);
+        for y in RADIUS..h - RADIUS {
+            for x in RADIUS..w - RADIUS {
+                let v = map[y * w + x];
+                assert!((v - expected).abs() < 2e-4, "({x},{y}): {v} vs {expected}");
+            }
+        }
+        // At a corner the zero padding makes the local statistics differ.
+        assert!((map[0] - expected).abs() > 1e-3);
+    }
+
+    #[test]
+    fn matches_direct_reference() {
+        for (w, h, seed) in [(13, 9, 1), (30, 17, 2), (4, 3, 3), (11, 1, 4)] {
+            let a = noisy(w, h, seed);
+            // A correlated second image, so SSIM is away from 0.
+            let mut b = noisy(w, h, seed + 100);
+            for (q, p) in b.data.iter_mut().zip(&a.data) {
+                for c in 0..3 {
+                    q[c] = 0.7 * p[c] + 0.3 * q[c];
+                }
+            }
+            let reference = reference_map(&to_f64(&a), &to_f64(&b), w, h);
+            let map = ssim_map(&a, &b);
+            for (i, (m, r)) in map.iter().zip(&reference).enumerate() {
+                let r = (r[0] + r[1] + r[2]) / 3.0;
+                assert!(
+                    (*m as f64 - r).abs() < 2e-4,
+                    "{w}x{h} pixel {i}: {m} vs {r}"
+                );
+            }
+            let s = ssim(&a, &b) as f64;
+            let r = reference_ssim(&to_f64(&a), &to_f64(&b), w, h);
+            assert!((s - r).abs() < 2e-5, "{w}x{h}: {s} vs {r}");
+        }
+    }
+
+    #[test]
+    fn masked_ssim_full_and_empty() {
+        let (a, b) = (noisy(12, 8, 5), noisy(12, 8, 6));
+        let full = masked_ssim(&a, &b, &[true; 96]).unwrap();
+        assert!((full - ssim(&a, &b)).abs() < 1e-6);
+        assert_eq!(masked_ssim(&a, &b, &[false; 96]), None);
+        let mut mask = vec![false; 96];
+        mask[50] = true;
+        assert!((masked_ssim(&a, &b, &mask).unwrap() - ssim_map(&a, &b)[50]).abs() < 1e-7);
+    }
+
+    /// Gradient against central differences of the `f64` reference (the `f32` forward would
+    /// drown an `h = 1e-3` step in rounding noise). The analytic gradient is computed in `f32`,
+    /// whose error relative to the largest gradient entry is ~1e-6·(condition ≈ 1/D ≲ 10²), and
+    /// the central-difference truncation error is O(h²) ≈ 1e-8 relative, so 1e-3 has a wide
+    /// margin while still catching any wrong term (dropping the −2μx correction, for instance,
+    /// gives a relative error of ~0.4). Checked both in L2 norm and per entry (relative, with a
+    /// floor of 1e-6 × the largest gradient entry for entries that are nearly zero); measured
+    /// errors are ~2e-7.
+    fn check_grad(w: usize, h: usize, seed: u32) {
+        let img = noisy(w, h, seed);
+        let gt = noisy(w, h, seed + 50);
+        let mut scratch = SsimScratch::new();
+        let mut d = vec![[0.0f32; 3]; w * h];
+        let s = ssim_with_grad(&mut scratch, &img, &gt, &mut d);
+        assert!((s - ssim(&img, &gt)).abs() < 1e-7);
+
+        let (x0, y) = (to_f64(&img), to_f64(&gt));
+        let step = 1e-4;
+        let grad_scale = d
+            .iter()
+            .flatten()
+            .fold(0.0f64, |m, v| m.max(v.abs() as f64));
+        let mut max_fd = 0.0f64;
+        let mut max_err = 0.0f64;
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for i in 0..w * h {
+            for c in 0..3 {
+                let mut x = x0.clone();
+                x[i][c] = x0[i][c] + step;
+                let plus = reference_ssim(&x, &y, w, h);
+                x[i][c] = x0[i][c] - step;
+                let minus = reference_ssim(&x, &y, w, h);
+                let fd = (plus - minus) / (2.0 * step);
+                let err = (d[i][c] as f64 - fd).abs();
+                // Per entry: relative error, with a floor for entries near zero.
+                assert!(
+                    err <= 1e-3 * fd.abs() + 1e-6 * grad_scale,
+                    "entry ({i}, {c}): {} vs {fd}",
+                    d[i][c]
+                );
+                max_fd = max_fd.max(fd.abs());
+                max_err = max_err.max(err);
+                num += err * err;
+                den += fd * fd;
+            }
+        }
+        let rel = (num / den).sqrt();
+        assert!(rel <= 1e-3, "{w}x{h}: relative L2 gradient error {rel}");
+        assert!(
+            max_err <= 1e-3 * max_fd,
+            "{w}x{h}: max error {max_err} (max |fd| {max_fd})"
+        );
+    }
+
+    #[test]
+    fn gradient_matches_finite_differences() {
+        check_grad(13, 9, 11);
+    }
+
+    #[test]
+    fn gradient_matches_finite_differences_small_image() {
+        // Smaller than the window in both directions: every pixel is a border pixel.
+        check_grad(4, 3, 12);
+    }
+
+    #[test]
+    fn scratch_reuse_does_not_reallocate() {
+        let (a, b) = (noisy(20, 14, 8), noisy(20, 14, 9));
+        let mut scratch = SsimScratch::new();
+        let mut d = vec![[0.0f32; 3]; 20 * 14];
+        let first = ssim_with_grad(&mut scratch, &a, &b, &mut d);
+        let ptrs = (
+            scratch.stats.as_ptr(),
+            scratch.stats_tmp.as_ptr(),
+            scratch.grad.as_ptr(),
+            scratch.grad_tmp.as_ptr(),
+            scratch.map.as_ptr(),
+            scratch.row_sums.as_ptr(),
+        );
+        let d_first = d.clone();
+        let second = ssim_with_grad(&mut scratch, &a, &b, &mut d);
+        assert_eq!(first, second, "evaluation must be deterministic");
+        assert_eq!(d, d_first);
+        assert_eq!(ssim_with_scratch(&mut scratch, &a, &b), first);
+        let ptrs_after = (
+            scratch.stats.as_ptr(),
+            scratch.stats_tmp.as_ptr(),
+            scratch.grad.as_ptr(),
+            scratch.grad_tmp.as_ptr(),
+            scratch.map.as_ptr(),
+            scratch.row_sums.as_ptr(),
+        );
+        assert_eq!(ptrs, ptrs_after);
+        // A size change still works with the same scratch.
+        let (c, e) = (noisy(7, 5, 1), noisy(7, 5, 2));
+        let mut d2 = vec![[0.0f32; 3]; 35];
+        let s = ssim_with_grad(&mut scratch, &c, &e, &mut d2);
+        assert!((s - ssim(&c, &e)).abs() < 1e-7);
+    }
+
+    #[test]
+    #[should_panic(expected = "gradient buffer length")]
+    fn grad_length_mismatch_panics() {
+        let a = noisy(3, 3, 1);
+        ssim_with_grad(&mut SsimScratch::new(), &a, &a, &mut [[0.0; 3]; 8]);
+    }
+}

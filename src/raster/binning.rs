@@ -1,0 +1,139 @@
+//! Tile binning: which splats touch which 16×16 tile, depth-sorted per tile.
+
+use rayon::prelude::*;
+
+use super::{Splat, TILE};
+
+/// Per-tile, depth-sorted lists of splats, reused across frames.
+#[derive(Default)]
+pub struct TileBins {
+    pub tiles_x: usize,
+    pub tiles_y: usize,
+    /// Tile rectangle [x0, y0, x1, y1) per splat (empty for invisible splats).
+    rects: Vec<[u32; 4]>,
+    /// Prefix sums of entries per splat: splat s owns entries `splat_offsets[s]..splat_offsets[s+1]`.
+    splat_offsets: Vec<u32>,
+    /// Entries sorted by tile then depth: the splat index of each.
+    pub sorted_splats: Vec<u32>,
+    /// Sort key of each sorted entry: depth bits (high) and splat index (low).
+    sorted_keys: Vec<u64>,
+    /// Position in the sorted order of each unsorted entry (splat-major order).
+    pub sorted_position: Vec<u32>,
+    /// Tile t owns sorted entries `tile_offsets[t]..tile_offsets[t+1]`.
+    pub tile_offsets: Vec<u32>,
+    tile_fill: Vec<u32>,
+}
+
+impl TileBins {
+    /// Total number of (tile, splat) pairs.
+    pub fn entry_count(&self) -> usize {
+        self.sorted_splats.len()
+    }
+
+    /// Sorted entries of tile `t`.
+    pub fn tile_range(&self, t: usize) -> std::ops::Range<usize> {
+        self.tile_offsets[t] as usize..self.tile_offsets[t + 1] as usize
+    }
+
+    /// Entries (unsorted, splat-major) owned by splat `s`.
+    pub fn splat_range(&self, s: usize) -> std::ops::Range<usize> {
+        self.splat_offsets[s] as usize..self.splat_offsets[s + 1] as usize
+    }
+
+    /// Bins `splats` for an image of `width × height` pixels.
+    pub fn build(&mut self, splats: &[Splat], width: usize, height: usize) {
+        self.tiles_x = width.div_ceil(TILE);
+        self.tiles_y = height.div_ceil(TILE);
+        let tile_count = self.tiles_x * self.tiles_y;
+        let (tiles_x, tiles_y) = (self.tiles_x as f32, self.tiles_y as f32);
+
+        splats.par_iter().map(|s| tile_rect(s, tiles_x, tiles_y)).collect_into_vec(&mut self.rects);
+
+        self.splat_offsets.clear();
+        self.splat_offsets.reserve(splats.len() + 1);
+        self.splat_offsets.push(0);
+        let mut total = 0u32;
+        for r in &self.rects {
+            total += (r[2] - r[0]) * (r[3] - r[1]);
+            self.splat_offsets.push(total);
+        }
+        let total = total as usize;
+
+        // Counting sort of entries by tile; within a tile, entries stay in splat order.
+        self.tile_fill.clear();
+        self.tile_fill.resize(tile_count + 1, 0);
+        for r in &self.rects {
+            for ty in r[1]..r[3] {
+                for tx in r[0]..r[2] {
+                    self.tile_fill[(ty as usize) * self.tiles_x + tx as usize + 1] += 1;
+                }
+            }
+        }
+        for t in 0..tile_count {
+            self.tile_fill[t + 1] += self.tile_fill[t];
+        }
+        self.tile_offsets.clear();
+        self.tile_offsets.extend_from_slice(&self.tile_fill);
+
+        self.sorted_splats.resize(total, 0);
+        self.sorted_keys.resize(total, 0);
+        self.sorted_position.resize(total, 0);
+        for (s, r) in self.rects.iter().enumerate() {
+            for ty in r[1]..r[3] {
+                for tx in r[0]..r[2] {
+                    let t = (ty as usize) * self.tiles_x + tx as usize;
+                    let k = self.tile_fill[t] as usize;
+                    self.tile_fill[t] += 1;
+                    // Depths are positive (beyond the near plane), so their bits order like the values.
+                    self.sorted_keys[k] = ((splats[s].depth.to_bits() as u64) << 32) | s as u64;
+                }
+            }
+        }
+
+        // Depth sort inside each tile; the splat index in the key's low bits breaks ties.
+        let mut tiles = split_by_offsets(&mut self.sorted_keys, &self.tile_offsets);
+        tiles.par_iter_mut().for_each(|keys| keys.sort_unstable());
+        drop(tiles);
+        self.sorted_splats.par_iter_mut().zip(self.sorted_keys.par_iter()).for_each(|(s, k)| *s = *k as u32);
+        self.rebuild_positions();
+    }
+
+    fn rebuild_positions(&mut self) {
+        // Entries of one splat appear in increasing tile order, one per tile; walking tiles in
+        // order therefore visits each splat's entries in their unsorted order.
+        self.tile_fill.clear();
+        self.tile_fill.extend_from_slice(&self.splat_offsets[..self.splat_offsets.len() - 1]);
+        for k in 0..self.sorted_splats.len() {
+            let s = self.sorted_splats[k] as usize;
+            self.sorted_position[self.tile_fill[s] as usize] = k as u32;
+            self.tile_fill[s] += 1;
+        }
+    }
+}
+
+/// The tiles a splat's screen box overlaps, as [x0, y0, x1, y1) in tile units.
+fn tile_rect(s: &Splat, tiles_x: f32, tiles_y: f32) -> [u32; 4] {
+    if !s.visible {
+        return [0; 4];
+    }
+    let t = TILE as f32;
+    let x0 = ((s.mean2d.x - s.extent.x) / t).floor().clamp(0.0, tiles_x);
+    let y0 = ((s.mean2d.y - s.extent.y) / t).floor().clamp(0.0, tiles_y);
+    let x1 = (((s.mean2d.x + s.extent.x) / t).floor() + 1.0).clamp(0.0, tiles_x);
+    let y1 = (((s.mean2d.y + s.extent.y) / t).floor() + 1.0).clamp(0.0, tiles_y);
+    if x1 <= x0 || y1 <= y0 {
+        return [0; 4];
+    }
+    [x0 as u32, y0 as u32, x1 as u32, y1 as u32]
+}
+
+/// Splits `data` into consecutive mutable slices at `offsets` (len = pieces + 1).
+pub(super) fn split_by_offsets<'a, T>(mut data: &'a mut [T], offsets: &[u32]) -> Vec<&'a mut [T]> {
+    let mut pieces = Vec::with_capacity(offsets.len().saturating_sub(1));
+    for w in offsets.windows(2) {
+        let (head, tail) = data.split_at_mut((w[1] - w[0]) as usize);
+        pieces.push(head);
+        data = tail;
+    }
+    pieces
+}

@@ -1,0 +1,126 @@
+//! CPU tile rasterizer, forward and backward: the reference backend.
+//!
+//! Splats (projected 2D Gaussians) are binned into 16×16 tiles, sorted by depth per tile and
+//! alpha-blended front to back with the 3DGS constants (SPEC §4). The backward pass walks each
+//! pixel's contributors back to front and writes one gradient per (tile, splat) pair; those
+//! partial sums are then reduced per splat, so no atomics are needed and the result is
+//! deterministic.
+
+mod backward;
+mod binning;
+mod forward;
+
+use glam::Vec2;
+
+use crate::io::image::Image;
+
+pub use binning::TileBins;
+
+/// Tile side in pixels.
+pub const TILE: usize = 16;
+/// Pixels per tile.
+pub const TILE_PIXELS: usize = TILE * TILE;
+/// Contributions below this alpha are skipped.
+pub const ALPHA_MIN: f32 = 1.0 / 255.0;
+/// Alpha is clamped to this value.
+pub const ALPHA_MAX: f32 = 0.99;
+/// A pixel stops once its transmittance would fall below this.
+pub const TRANSMITTANCE_MIN: f32 = 1e-4;
+
+/// A projected Gaussian ready to be blended.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Splat {
+    /// Centre in pixel coordinates (pixel (x, y) has its centre at (x + 0.5, y + 0.5)).
+    pub mean2d: Vec2,
+    /// (a, b, c) of the inverse 2D covariance: power = −½(a·dx² + c·dy²) − b·dx·dy.
+    pub conic: [f32; 3],
+    pub depth: f32,
+    pub opacity: f32,
+    pub color: [f32; 3],
+    /// Half-size in pixels of the screen box it covers.
+    pub extent: Vec2,
+    /// False for splats culled by projection: they cover no tile.
+    pub visible: bool,
+}
+
+/// Gradient of the loss with respect to a splat's blended quantities.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SplatGrad {
+    pub mean2d: Vec2,
+    pub conic: [f32; 3],
+    pub opacity: f32,
+    pub color: [f32; 3],
+}
+
+impl SplatGrad {
+    fn add(&mut self, other: &SplatGrad) {
+        self.mean2d += other.mean2d;
+        for i in 0..3 {
+            self.conic[i] += other.conic[i];
+            self.color[i] += other.color[i];
+        }
+        self.opacity += other.opacity;
+    }
+}
+
+/// Rasterizer state reused across iterations: tile bins and the per-pixel forward results
+/// the backward pass needs.
+#[derive(Default)]
+pub struct Rasterizer {
+    bins: TileBins,
+    /// Final transmittance per pixel, tile-major.
+    final_transmittance: Vec<f32>,
+    /// Per pixel (tile-major): number of tile entries up to and including the last one blended.
+    contributors: Vec<u32>,
+    /// Tile-major colour buffer of the last forward pass.
+    tile_color: Vec<[f32; 3]>,
+    /// Per-entry gradient partial sums (in tile-sorted entry order).
+    entry_grads: Vec<SplatGrad>,
+    background: [f32; 3],
+}
+
+/// Rendered image and coverage (alpha = 1 − final transmittance), row-major.
+#[derive(Clone, Debug)]
+pub struct RenderOutput {
+    pub image: Image,
+    pub alpha: Vec<f32>,
+}
+
+impl Default for RenderOutput {
+    fn default() -> Self {
+        Self { image: Image::filled(0, 0, [0.0; 3]), alpha: Vec::new() }
+    }
+}
+
+impl Rasterizer {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Number of (tile, splat) pairs in the last forward pass.
+    pub fn intersections(&self) -> usize {
+        self.bins.entry_count()
+    }
+
+    fn tiles_x(&self) -> usize {
+        self.bins.tiles_x
+    }
+}
+
+/// Reorders a tile-major buffer into a row-major image of `width × height`.
+fn untile<T: Copy + Send + Sync>(tiled: &[T], tiles_x: usize, width: usize, height: usize, out: &mut Vec<T>, fill: T) {
+    use rayon::prelude::*;
+    out.clear();
+    out.resize(width * height, fill);
+    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        let ty = y / TILE;
+        let ly = y % TILE;
+        for (x, value) in row.iter_mut().enumerate() {
+            let tile = ty * tiles_x + x / TILE;
+            *value = tiled[tile * TILE_PIXELS + ly * TILE + x % TILE];
+        }
+    });
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,151 @@
+//! Resources shared by the training systems: settings, counters, the sampled view and the
+//! per-iteration scratch buffers (reused, never reallocated once warm).
+
+use std::sync::Arc;
+
+use bevy_ecs::prelude::*;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::data::{Camera, Dataset};
+use crate::metrics::loss::{LossScratch, LossValue};
+use crate::model::deform::TemporalOpacity;
+use crate::model::warp::TimeWarp;
+use crate::raster::{Rasterizer, RenderOutput, Splat, SplatGrad};
+use crate::scene::{DensifyConfig, ModelConfig, OpacityModel, PhaseModel, SceneConfig, TrainConfig};
+
+/// Settings of a run, resolved from the scene file and the dataset.
+#[derive(Resource, Clone, Debug)]
+pub struct Settings {
+    pub model: ModelConfig,
+    pub densify: DensifyConfig,
+    pub train: TrainConfig,
+    /// Number of frames T of the sequence.
+    pub frame_count: usize,
+    /// Scene extent (radius of the camera rig × 1.1, as in 3DGS); scales learning rates and
+    /// densification sizes.
+    pub extent: f32,
+    /// The temporal warp W (identity when TOW is off).
+    pub warp: TimeWarp,
+    /// The temporal opacity form.
+    pub opacity: TemporalOpacity,
+}
+
+impl Settings {
+    /// Resolves a scene's settings for a sequence of `frame_count` frames with the given extent.
+    pub fn new(scene: &SceneConfig, frame_count: usize, extent: f32) -> Self {
+        let tow = scene.model.tow;
+        let warp = if tow.enabled { TimeWarp::tow(tow.window_frames, frame_count, tow.rho) } else { TimeWarp::Identity };
+        let opacity = match scene.model.opacity {
+            OpacityModel::Rbf => TemporalOpacity::Rbf,
+            OpacityModel::Asymmetric => TemporalOpacity::asymmetric(frame_count),
+        };
+        Self {
+            model: scene.model.clone(),
+            densify: scene.densify.clone(),
+            train: scene.train.clone(),
+            frame_count,
+            extent,
+            warp,
+            opacity,
+        }
+    }
+
+    /// Whether the Fourier phase is shared by all frequencies (paper form).
+    pub fn shared_phase(&self) -> bool {
+        self.model.phase == PhaseModel::PerGaussian
+    }
+}
+
+/// Counters of the run.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct TrainState {
+    /// The iteration being run, from 1 (0 before the first).
+    pub iteration: u32,
+    /// SH degree currently in use (raised on a schedule up to the model's degree).
+    pub sh_degree: u32,
+    /// Loss of the last iteration.
+    pub loss: LossValue,
+    /// Gaussians added and removed by the last densification step.
+    pub last_densify: DensifyReport,
+}
+
+/// What a densification step did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DensifyReport {
+    pub iteration: u32,
+    pub cloned: usize,
+    pub split: usize,
+    pub pruned: usize,
+}
+
+/// The training images and cameras.
+#[derive(Resource, Clone)]
+pub struct TrainingViews(pub Arc<Dataset>);
+
+/// The view of the current iteration.
+#[derive(Resource, Clone, Copy, Debug)]
+pub struct ViewSample {
+    pub camera: Camera,
+    /// Index into the dataset's cameras, when the view is from the dataset.
+    pub camera_index: Option<usize>,
+    pub frame: usize,
+    /// Normalised time in [0, 1].
+    pub time: f32,
+}
+
+/// Random order of (camera, frame) training views, reshuffled every epoch.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct ViewOrder {
+    pub order: Vec<(usize, usize)>,
+    pub next: usize,
+}
+
+/// The run's single source of randomness (same seed, same run).
+#[derive(Resource, Clone, Debug)]
+pub struct Rng(pub ChaCha8Rng);
+
+impl Rng {
+    pub fn seeded(seed: u64) -> Self {
+        Self(ChaCha8Rng::seed_from_u64(seed))
+    }
+}
+
+/// Which backend runs the splatting stage.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Backend {
+    #[default]
+    Cpu,
+}
+
+/// Gradient of the loss with respect to a deformed Gaussian (at the current time).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DeformedGrad {
+    pub mean: glam::Vec3,
+    pub rotation: [f32; 4],
+    pub scale: glam::Vec3,
+    pub opacity: f32,
+    pub color: [f32; 3],
+}
+
+/// The splatting stage's per-iteration arrays, indexed by [`crate::components::SplatSlot`].
+#[derive(Resource, Default)]
+pub struct SplatBuffers {
+    /// The deformed Gaussians gathered in slot order.
+    pub deformed: Vec<crate::components::Deformed>,
+    pub splats: Vec<Splat>,
+    pub rasterizer: Rasterizer,
+    pub render: RenderOutput,
+    pub splat_grads: Vec<SplatGrad>,
+    pub deformed_grads: Vec<DeformedGrad>,
+    /// ‖∂L/∂μ2D‖ in NDC units per slot (0 for splats not drawn).
+    pub ndc_grad_norm: Vec<f32>,
+}
+
+/// The loss of the current iteration and its gradient with respect to the rendered image.
+#[derive(Resource, Default)]
+pub struct LossImage {
+    pub value: LossValue,
+    pub d_color: Vec<[f32; 3]>,
+    pub scratch: LossScratch,
+}

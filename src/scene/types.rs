@@ -1,0 +1,253 @@
+//! The scene file: data source, model and schedule settings, with the SPEC's defaults.
+//!
+//! Every struct denies unknown fields so a typo is an error, not a silently ignored setting.
+
+use serde::{Deserialize, Serialize};
+
+use crate::data::synthetic::SyntheticScene;
+
+/// One scene file: where the data comes from and how to train on it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SceneConfig {
+    /// Short name used in logs and output folders.
+    pub name: String,
+    /// Where the multi-view video comes from.
+    pub data: DataSource,
+    #[serde(default)]
+    pub init: InitConfig,
+    #[serde(default)]
+    pub model: ModelConfig,
+    #[serde(default)]
+    pub densify: DensifyConfig,
+    #[serde(default)]
+    pub train: TrainConfig,
+    /// Output directory for renders and reports (relative to the working directory).
+    #[serde(default = "default_output")]
+    pub output: String,
+}
+
+fn default_output() -> String {
+    "runs/out".into()
+}
+
+/// Where the images and cameras come from.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub enum DataSource {
+    /// Analytic objects rendered by the built-in ray caster (no files needed).
+    Synthetic(SyntheticScene),
+}
+
+/// How the initial Gaussians are made.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InitConfig {
+    /// Anchor (temporal centre) spacing in frames; the last frame is always an anchor.
+    pub anchor_spacing: usize,
+    /// Random points per anchor frame in the cameras' common view volume.
+    pub points_per_anchor: usize,
+    /// Initial opacity (SPEC: 0.1).
+    pub opacity: f32,
+    /// Half-width, in frames, over which a new Gaussian keeps σ(t)/σ^s > 0.2.
+    pub lifespan_half_frames: f32,
+}
+
+impl Default for InitConfig {
+    fn default() -> Self {
+        Self { anchor_spacing: 20, points_per_anchor: 2000, opacity: 0.1, lifespan_half_frames: 25.0 }
+    }
+}
+
+/// The form of the temporal opacity σ(t).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub enum OpacityModel {
+    /// Paper: σ^s·exp(−ψ·Δt'²), ψ = exp(raw).
+    Rbf,
+    /// Implementation: asymmetric Gaussian with left/right widths w = w_min·exp(s) ≤ 1.1.
+    Asymmetric,
+}
+
+/// Fourier phase: one per Gaussian (paper) or one per frequency (implementation).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub enum PhaseModel {
+    PerGaussian,
+    PerFrequency,
+}
+
+/// Temporal Offset Warping settings.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TowConfig {
+    pub enabled: bool,
+    /// Focus window in frames; λ = window_frames / T.
+    pub window_frames: f32,
+    /// Fraction of the temporal capacity inside the window (paper 0.75, implementation 0.7).
+    pub rho: f32,
+}
+
+impl Default for TowConfig {
+    fn default() -> Self {
+        Self { enabled: true, window_frames: 50.0, rho: 0.75 }
+    }
+}
+
+/// Deformation model settings.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    /// Highest SH degree (0..=3).
+    pub sh_degree: u32,
+    pub opacity: OpacityModel,
+    pub phase: PhaseModel,
+    /// Scale polynomial of degree 1 (paper); false keeps the scale constant (implementation).
+    pub scale_motion: bool,
+    pub tow: TowConfig,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self {
+            sh_degree: 3,
+            opacity: OpacityModel::Rbf,
+            phase: PhaseModel::PerGaussian,
+            scale_motion: true,
+            tow: TowConfig::default(),
+        }
+    }
+}
+
+/// The densification threshold's dependence on lifespan.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub enum TatForm {
+    /// Paper: τ·(1 / (1 + β(1 − ψ̄)))^α.
+    Paper { beta: f32, alpha: f32 },
+    /// Implementation: τ·(β + (1 − β)·ψ̄^α).
+    Implementation { beta: f32, alpha: f32 },
+}
+
+/// Densification schedule and criteria.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DensifyConfig {
+    /// Visibility-aware densification: opacity-weighted mean of the 2D gradient.
+    pub vad: bool,
+    /// Implementation option: count a view for VAD only where σ(t) exceeds this.
+    pub vad_min_opacity: Option<f32>,
+    /// Temporally adaptive threshold.
+    pub tat: bool,
+    pub tat_form: TatForm,
+    /// Base threshold on the NDC-space 2D mean gradient (3DGS: 2e-4).
+    pub grad_threshold: f32,
+    /// Clone if max scale ≤ this fraction of the scene extent, else split.
+    pub percent_dense: f32,
+    pub interval: u32,
+    pub from_iter: u32,
+    pub until_iter: u32,
+    pub opacity_reset_interval: u32,
+    pub prune_opacity: f32,
+    /// Also prune Gaussians whose screen radius > 20 px or world scale > 0.1·extent.
+    pub prune_big: bool,
+    /// Upper bound on the population; densification stops growing at the cap.
+    pub max_gaussians: usize,
+}
+
+impl Default for DensifyConfig {
+    fn default() -> Self {
+        Self {
+            vad: true,
+            vad_min_opacity: None,
+            tat: true,
+            tat_form: TatForm::Paper { beta: 0.3, alpha: 1.0 },
+            grad_threshold: 2e-4,
+            percent_dense: 0.01,
+            interval: 200,
+            from_iter: 500,
+            until_iter: 17_000,
+            opacity_reset_interval: 3000,
+            prune_opacity: 0.005,
+            prune_big: false,
+            max_gaussians: 5_000_000,
+        }
+    }
+}
+
+/// Learning rates (SPEC §1).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LearningRates {
+    /// Initial position lr, multiplied by the scene extent.
+    pub position: f32,
+    /// Final position lr (exponential decay over the run), multiplied by the scene extent.
+    pub position_final: f32,
+    /// Fourier coefficients: this fraction of the current position lr.
+    pub fourier_cos_sin: f32,
+    /// Fourier phase: this fraction of the current position lr.
+    pub fourier_phase: f32,
+    pub temporal_scale: f32,
+    pub opacity: f32,
+    pub rotation: f32,
+    pub rotation_velocity: f32,
+    pub scale: f32,
+    pub scale_velocity: f32,
+    pub sh_dc: f32,
+    /// Higher SH bands use sh_dc divided by this.
+    pub sh_rest_divisor: f32,
+}
+
+impl Default for LearningRates {
+    fn default() -> Self {
+        Self {
+            position: 2.6e-4,
+            position_final: 2.6e-6,
+            fourier_cos_sin: 0.35,
+            fourier_phase: 0.07,
+            temporal_scale: 0.01,
+            opacity: 0.05,
+            rotation: 1e-3,
+            rotation_velocity: 1e-4,
+            scale: 1.5e-3,
+            scale_velocity: 1.5e-4,
+            sh_dc: 2.5e-3,
+            sh_rest_divisor: 20.0,
+        }
+    }
+}
+
+/// Which backend runs splatting.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+pub enum BackendKind {
+    Cpu,
+}
+
+/// Optimisation schedule.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    pub iterations: u32,
+    pub seed: u64,
+    /// Background colour the renders are composited over.
+    pub background: [f32; 3],
+    /// Weight of D-SSIM in the loss (0.2).
+    pub lambda_dssim: f32,
+    /// Raise the SH degree by one every this many iterations.
+    pub sh_increase_interval: u32,
+    pub lr: LearningRates,
+    pub backend: BackendKind,
+    /// Print an evaluation line every this many iterations (0 = only at the end).
+    pub eval_interval: u32,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 40_000,
+            seed: 0,
+            background: [0.0; 3],
+            lambda_dssim: 0.2,
+            sh_increase_interval: 1000,
+            lr: LearningRates::default(),
+            backend: BackendKind::Cpu,
+            eval_interval: 0,
+        }
+    }
+}

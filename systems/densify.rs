@@ -1,0 +1,220 @@
+//! Densification: visibility-aware gradient statistics (VAD), lifespan-aware thresholds (TAT),
+//! clone / split / prune, opacity reset. The only stage that spawns or despawns Gaussians.
+
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::ScheduleConfigs;
+use bevy_ecs::system::ScheduleSystem;
+use glam::{Quat, Vec3};
+use rand_distr::{Distribution, StandardNormal};
+
+use crate::components::{Adam, Deformed, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal, fresh_optimizer_state};
+use crate::model::deform::{lifespan_fraction, logit, sigmoid};
+use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
+use crate::scene::TatForm;
+
+/// Children of a split have their scales divided by this.
+pub const SPLIT_SCALE_DIVISOR: f32 = 1.6;
+/// Opacity reset ceiling: σ^s ← min(σ^s, 0.01).
+pub const OPACITY_RESET: f32 = 0.01;
+/// `prune_big`: screen radius limit in pixels.
+pub const PRUNE_SCREEN_RADIUS: f32 = 20.0;
+/// `prune_big`: world scale limit as a fraction of the scene extent.
+pub const PRUNE_WORLD_SCALE: f32 = 0.1;
+
+/// Adds one view's gradient sample to the statistics.
+///
+/// With VAD the sample is weighted by the Gaussian's opacity σ(t) in that view
+/// (ḡ = Σσ(t)·g(t) / Σσ(t)); without it every visible view weighs 1 (the 3DGS mean).
+pub fn accumulate(accum: &mut GradAccum, grad_norm: f32, sigma: f32, lifespan: f32, vad: bool) {
+    let weight = if vad { sigma } else { 1.0 };
+    accum.weighted_grad += weight * grad_norm;
+    accum.weight += weight;
+    accum.lifespan_sum += lifespan;
+    accum.count += 1;
+}
+
+/// The densification signal ḡ: weighted mean gradient (0 when never seen).
+pub fn mean_gradient(accum: &GradAccum) -> f32 {
+    if accum.weight > 0.0 { accum.weighted_grad / accum.weight } else { 0.0 }
+}
+
+/// The average normalised lifespan ψ̄ over the counted views (1 when never seen).
+pub fn mean_lifespan(accum: &GradAccum) -> f32 {
+    if accum.count > 0 { accum.lifespan_sum / accum.count as f32 } else { 1.0 }
+}
+
+/// TAT: the threshold of a Gaussian with mean normalised lifespan ψ̄ ∈ [0, 1].
+pub fn tat_threshold(form: TatForm, base: f32, lifespan: f32) -> f32 {
+    let lifespan = lifespan.clamp(0.0, 1.0);
+    match form {
+        TatForm::Paper { beta, alpha } => base * (1.0 / (1.0 + beta * (1.0 - lifespan))).powf(alpha),
+        TatForm::Implementation { beta, alpha } => base * (beta + (1.0 - beta) * lifespan.powf(alpha)),
+    }
+}
+
+/// Run condition: accumulate statistics while densification is still scheduled.
+pub fn densifying(settings: Res<Settings>, state: Res<TrainState>) -> bool {
+    state.iteration <= settings.densify.until_iter
+}
+
+/// Run condition: this iteration is a densification step.
+pub fn densify_step(settings: Res<Settings>, state: Res<TrainState>) -> bool {
+    let d = &settings.densify;
+    let i = state.iteration;
+    i > d.from_iter && i <= d.until_iter && i % d.interval.max(1) == 0
+}
+
+/// Run condition: this iteration resets the opacities.
+pub fn opacity_reset_step(settings: Res<Settings>, state: Res<TrainState>) -> bool {
+    let d = &settings.densify;
+    let i = state.iteration;
+    d.opacity_reset_interval > 0 && i <= d.until_iter && i % d.opacity_reset_interval == 0
+}
+
+/// Adds this iteration's view to every visible Gaussian's statistics.
+pub fn accumulate_stats(
+    settings: Res<Settings>,
+    buffers: Res<SplatBuffers>,
+    mut gaussians: Query<(&SplatSlot, &Deformed, &Temporal, &mut GradAccum)>,
+) {
+    let vad = settings.densify.vad;
+    let min_opacity = settings.densify.vad_min_opacity;
+    let (warp, model) = (settings.warp, settings.opacity);
+    gaussians.par_iter_mut().for_each(|(slot, deformed, temporal, mut accum)| {
+        let slot = slot.0 as usize;
+        let splat = &buffers.splats[slot];
+        if !splat.visible || min_opacity.is_some_and(|m| deformed.opacity <= m) {
+            return;
+        }
+        let lifespan = lifespan_fraction(model, temporal.scale, temporal.center, &warp);
+        accumulate(&mut accum, buffers.ndc_grad_norm[slot], deformed.opacity, lifespan, vad);
+        accum.max_radius = accum.max_radius.max(splat.extent.max_element());
+    });
+}
+
+/// Clones small and splits large Gaussians whose ḡ exceeds their threshold, prunes transparent
+/// (and optionally oversized) ones, and resets the statistics.
+pub fn densify_and_prune(
+    mut commands: Commands,
+    settings: Res<Settings>,
+    mut state: ResMut<TrainState>,
+    mut rng: ResMut<Rng>,
+    mut gaussians: Query<(Entity, &mut Position, &Rotation, &mut Scale, &Opacity, &mut GradAccum)>,
+) {
+    let d = &settings.densify;
+    let extent = settings.extent;
+    let mut report = DensifyReport { iteration: state.iteration, ..Default::default() };
+    let mut population = gaussians.iter().len();
+    let prune_big = d.prune_big && state.iteration > d.opacity_reset_interval;
+    for (entity, mut position, rotation, mut scale, opacity, mut accum) in gaussians.iter_mut() {
+        let stats = std::mem::take(&mut *accum);
+        let max_scale = Vec3::from_array(scale.d0).exp().max_element();
+        let transparent = sigmoid(opacity.logit) < d.prune_opacity;
+        let oversized = prune_big && (stats.max_radius > PRUNE_SCREEN_RADIUS || max_scale > PRUNE_WORLD_SCALE * extent);
+        if transparent || oversized {
+            commands.entity(entity).despawn();
+            report.pruned += 1;
+            population -= 1;
+            continue;
+        }
+        let threshold = if d.tat { tat_threshold(d.tat_form, d.grad_threshold, mean_lifespan(&stats)) } else { d.grad_threshold };
+        if mean_gradient(&stats) < threshold || population >= d.max_gaussians {
+            continue;
+        }
+        population += 1;
+        if max_scale <= d.percent_dense * extent {
+            // Clone: an identical copy with fresh optimiser state.
+            commands.entity(entity).clone_and_spawn().insert(fresh_optimizer_state());
+            report.cloned += 1;
+        } else {
+            // Split: the Gaussian and its copy move to two samples of itself, scales / 1.6.
+            let sigma = Vec3::from_array(scale.d0).exp();
+            let q = rotation.c0;
+            let rot = Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
+            let mut sample = || {
+                let n = Vec3::new(StandardNormal.sample(&mut rng.0), StandardNormal.sample(&mut rng.0), StandardNormal.sample(&mut rng.0));
+                Vec3::from_array(position.mean) + rot * (sigma * n)
+            };
+            let (a, b) = (sample(), sample());
+            position.mean = a.to_array();
+            for s in &mut scale.d0 {
+                *s -= SPLIT_SCALE_DIVISOR.ln();
+            }
+            commands.entity(entity).insert(fresh_optimizer_state());
+            commands.entity(entity).clone_and_spawn().insert(Position { mean: b.to_array() });
+            report.split += 1;
+        }
+    }
+    state.last_densify = report;
+}
+
+/// Caps every spatial opacity at 0.01 and clears its Adam moments.
+pub fn reset_opacity(mut gaussians: Query<(&mut Opacity, &mut Adam<Opacity>)>) {
+    let cap = logit(OPACITY_RESET);
+    gaussians.par_iter_mut().for_each(|(mut opacity, mut adam)| {
+        opacity.logit = opacity.logit.min(cap);
+        *adam = Adam::default();
+    });
+}
+
+/// The densification stage's systems with their run conditions.
+pub fn densify_systems() -> ScheduleConfigs<ScheduleSystem> {
+    (
+        accumulate_stats.run_if(densifying),
+        densify_and_prune.run_if(densify_step),
+        reset_opacity.run_if(opacity_reset_step),
+    )
+        .chain()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// VAD equals the plain 3DGS mean when σ(t) = 1 in every view.
+    #[test]
+    fn vad_with_full_opacity_is_the_plain_mean() {
+        let grads = [1e-4, 5e-4, 2e-4, 9e-4];
+        let (mut vad, mut plain) = (GradAccum::default(), GradAccum::default());
+        for g in grads {
+            accumulate(&mut vad, g, 1.0, 1.0, true);
+            accumulate(&mut plain, g, 0.37, 1.0, false);
+        }
+        let mean = grads.iter().sum::<f32>() / grads.len() as f32;
+        assert!((mean_gradient(&vad) - mean).abs() < 1e-9);
+        assert!((mean_gradient(&plain) - mean).abs() < 1e-9);
+    }
+
+    /// VAD is not diluted by views where the Gaussian is nearly invisible.
+    #[test]
+    fn vad_discounts_views_where_the_gaussian_is_faint() {
+        let mut vad = GradAccum::default();
+        let mut plain = GradAccum::default();
+        for (g, sigma) in [(8e-4, 0.9), (0.0, 0.01), (0.0, 0.01), (0.0, 0.01)] {
+            accumulate(&mut vad, g, sigma, 1.0, true);
+            accumulate(&mut plain, g, sigma, 1.0, false);
+        }
+        assert!((mean_gradient(&plain) - 2e-4).abs() < 1e-9);
+        assert!(mean_gradient(&vad) > 7.5e-4);
+    }
+
+    /// TAT equals τ_pos at full lifespan and decreases for shorter lifespans (both forms).
+    #[test]
+    fn tat_is_base_at_full_lifespan_and_lower_for_short_lived() {
+        let paper = TatForm::Paper { beta: 0.3, alpha: 1.0 };
+        assert!((tat_threshold(paper, 2e-4, 1.0) - 2e-4).abs() < 1e-12);
+        assert!((tat_threshold(paper, 2e-4, 0.0) - 2e-4 / 1.3).abs() < 1e-10);
+        let implementation = TatForm::Implementation { beta: 0.75, alpha: 0.8 };
+        assert!((tat_threshold(implementation, 2e-4, 1.0) - 2e-4).abs() < 1e-12);
+        assert!((tat_threshold(implementation, 2e-4, 0.0) - 1.5e-4).abs() < 1e-10);
+        for form in [paper, implementation] {
+            let mut last = f32::INFINITY;
+            for i in (0..=10).rev() {
+                let t = tat_threshold(form, 2e-4, i as f32 / 10.0);
+                assert!(t <= last);
+                last = t;
+            }
+            assert!(tat_threshold(form, 2e-4, 0.1) < tat_threshold(form, 2e-4, 0.9));
+        }
+    }
+}

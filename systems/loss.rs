@@ -1,0 +1,22 @@
+//! The photometric loss 0.8·L1 + 0.2·(1 − SSIM) and its gradient with respect to the render.
+
+use bevy_ecs::prelude::*;
+
+use crate::metrics::loss::training_loss;
+use crate::resources::{LossImage, Settings, SplatBuffers, TrainState, TrainingViews, ViewSample};
+
+/// Compares the render with the ground-truth image of the sampled view.
+pub fn loss(
+    settings: Res<Settings>,
+    views: Res<TrainingViews>,
+    sample: Res<ViewSample>,
+    buffers: Res<SplatBuffers>,
+    mut loss: ResMut<LossImage>,
+    mut state: ResMut<TrainState>,
+) {
+    let camera = sample.camera_index.expect("training views come from the dataset");
+    let gt = &views.0.images[camera][sample.frame];
+    let loss = &mut *loss;
+    loss.value = training_loss(&mut loss.scratch, &buffers.render.image, gt, settings.train.lambda_dssim, &mut loss.d_color);
+    state.loss = loss.value;
+}

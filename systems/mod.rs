@@ -1,0 +1,77 @@
+//! The training stages as bevy_ecs systems, in the order of one iteration:
+//!
+//! `sample_view → time_warp → deform → splat → loss → backward → adam → densify`
+//!
+//! Each stage is a [`TrainSet`]; [`training_schedule`] chains the sets once. Structural changes
+//! (spawn on clone/split, despawn on prune) happen only in [`TrainSet::Densify`].
+
+pub mod adam;
+pub mod backward;
+pub mod deform;
+pub mod densify;
+pub mod loss;
+pub mod sample_view;
+pub mod splat;
+pub mod time_warp;
+
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::{ScheduleLabel, SingleThreadedExecutor};
+
+/// The stages of one training iteration, in order.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum TrainSet {
+    SampleView,
+    TimeWarp,
+    Deform,
+    Splat,
+    Loss,
+    Backward,
+    Adam,
+    Densify,
+}
+
+/// Label of the schedule returned by [`training_schedule`].
+#[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct TrainIteration;
+
+/// Label of the schedule returned by [`render_schedule`].
+#[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct RenderView;
+
+/// Adds every training system to `schedule`, each in its [`TrainSet`], with the sets chained.
+///
+/// Use this to put the tadgs stages into a schedule of your own; insert your systems between
+/// stages with `.after(TrainSet::X).before(TrainSet::Y)`.
+pub fn add_training_systems(schedule: &mut Schedule) {
+    use TrainSet::*;
+    schedule.configure_sets((SampleView, TimeWarp, Deform, Splat, Loss, Backward, Adam, Densify).chain());
+    schedule.add_systems((sample_view::advance_iteration, sample_view::sample_view).chain().in_set(SampleView));
+    schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
+    schedule.add_systems(deform::deform.in_set(Deform));
+    schedule.add_systems(splat::splat.in_set(Splat));
+    schedule.add_systems(loss::loss.in_set(Loss));
+    schedule.add_systems((backward::backward_splats, backward::backward_parameters).chain().in_set(Backward));
+    schedule.add_systems(adam::adam_systems().in_set(Adam));
+    schedule.add_systems(densify::densify_systems().in_set(Densify));
+}
+
+/// The schedule of one training iteration.
+pub fn training_schedule() -> Schedule {
+    let mut schedule = Schedule::new(TrainIteration);
+    schedule.set_executor(SingleThreadedExecutor::new());
+    add_training_systems(&mut schedule);
+    schedule
+}
+
+/// The schedule that renders the current [`crate::resources::ViewSample`] without training:
+/// time warp, deformation and splatting.
+pub fn render_schedule() -> Schedule {
+    use TrainSet::*;
+    let mut schedule = Schedule::new(RenderView);
+    schedule.set_executor(SingleThreadedExecutor::new());
+    schedule.configure_sets((TimeWarp, Deform, Splat).chain());
+    schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
+    schedule.add_systems(deform::deform.in_set(Deform));
+    schedule.add_systems(splat::splat.in_set(Splat));
+    schedule
+}

@@ -1,0 +1,36 @@
+//! Picks the training view (camera, frame) of the iteration and advances the counters.
+
+use bevy_ecs::prelude::*;
+use rand::seq::SliceRandom;
+
+use crate::resources::{Rng, Settings, TrainState, TrainingViews, ViewOrder, ViewSample};
+
+/// Counts the iteration and raises the SH degree by one every `sh_increase_interval` iterations.
+pub fn advance_iteration(settings: Res<Settings>, mut state: ResMut<TrainState>) {
+    state.iteration += 1;
+    let interval = settings.train.sh_increase_interval.max(1);
+    if state.iteration % interval == 0 && state.sh_degree < settings.model.sh_degree {
+        state.sh_degree += 1;
+    }
+}
+
+/// Samples (camera, frame) uniformly without replacement within an epoch.
+pub fn sample_view(views: Res<TrainingViews>, mut order: ResMut<ViewOrder>, mut rng: ResMut<Rng>, mut sample: ResMut<ViewSample>) {
+    let dataset = &views.0;
+    if order.next >= order.order.len() {
+        order.order.clear();
+        for &camera in &dataset.train_cameras {
+            order.order.extend((0..dataset.frame_count).map(|frame| (camera, frame)));
+        }
+        order.order.shuffle(&mut rng.0);
+        order.next = 0;
+    }
+    let (camera, frame) = order.order[order.next];
+    order.next += 1;
+    *sample = ViewSample {
+        camera: dataset.cameras[camera],
+        camera_index: Some(camera),
+        frame,
+        time: dataset.frame_time(frame),
+    };
+}
