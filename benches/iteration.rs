@@ -22,7 +22,15 @@ const WIDTH: u32 = 640;
 const HEIGHT: u32 = 360;
 
 fn camera() -> Camera {
-    Camera { width: WIDTH, height: HEIGHT, fx: 500.0, fy: 500.0, cx: 320.0, cy: 180.0, world_to_camera: Mat4::IDENTITY }
+    Camera {
+        width: WIDTH,
+        height: HEIGHT,
+        fx: 500.0,
+        fy: 500.0,
+        cx: 320.0,
+        cy: 180.0,
+        world_to_camera: Mat4::IDENTITY,
+    }
 }
 
 /// The benchmark population: means x ~ U(−2, 2), y ~ U(−1.2, 1.2), z ~ U(2, 6); normalised
@@ -37,12 +45,30 @@ fn benchmark_gaussians(n: usize, seed: u64) -> Vec<GaussianParams> {
             let mut color = Color::default();
             color.sh[0] = [rng.random::<f32>(), rng.random(), rng.random()].map(rgb_to_sh_dc);
             GaussianParams {
-                position: Position { mean: Vec3::new(rng.random_range(-2.0..2.0), rng.random_range(-1.2..1.2), rng.random_range(2.0..6.0)).to_array() },
+                position: Position {
+                    mean: Vec3::new(
+                        rng.random_range(-2.0..2.0),
+                        rng.random_range(-1.2..1.2),
+                        rng.random_range(2.0..6.0),
+                    )
+                    .to_array(),
+                },
                 // Centred at t = 0 with a long lifespan, so every Gaussian is drawn.
-                temporal: Temporal { center: 0.0, scale: [-10.0, -10.0] },
-                opacity: Opacity { logit: logit(rng.random_range(0.1..0.9)) },
-                rotation: Rotation { c0: q.map(|c| c / norm), c1: [0.0; 4] },
-                scale: Scale { d0: [(); 3].map(|_| rng.random_range(-4.5..-2.5)), d1: [0.0; 3] },
+                temporal: Temporal {
+                    center: 0.0,
+                    scale: [-10.0, -10.0],
+                },
+                opacity: Opacity {
+                    logit: logit(rng.random_range(0.1..0.9)),
+                },
+                rotation: Rotation {
+                    c0: q.map(|c| c / norm),
+                    c1: [0.0; 4],
+                },
+                scale: Scale {
+                    d0: [(); 3].map(|_| rng.random_range(-4.5..-2.5)),
+                    d1: [0.0; 3],
+                },
                 color,
                 ..Default::default()
             }
@@ -52,13 +78,19 @@ fn benchmark_gaussians(n: usize, seed: u64) -> Vec<GaussianParams> {
 
 fn world_with(n: usize) -> World {
     let cam = camera();
-    let target: Vec<[f32; 3]> = (0..(WIDTH * HEIGHT) as usize).map(|i| [((i % 97) as f32) / 97.0, 0.5, 0.3]).collect();
+    let target: Vec<[f32; 3]> = (0..(WIDTH * HEIGHT) as usize)
+        .map(|i| [((i % 97) as f32) / 97.0, 0.5, 0.3])
+        .collect();
     let dataset = Dataset {
         cameras: vec![cam],
         frame_count: 1,
         train_cameras: vec![0],
         test_cameras: vec![],
-        images: vec![vec![Image { width: WIDTH as usize, height: HEIGHT as usize, data: target }]],
+        images: vec![vec![Image {
+            width: WIDTH as usize,
+            height: HEIGHT as usize,
+            data: target,
+        }]],
         dynamic_masks: None,
     };
     let mut config = SceneConfig {
@@ -75,7 +107,12 @@ fn world_with(n: usize) -> World {
     config.densify.opacity_reset_interval = 0;
     let mut world = World::new();
     insert_resources(&mut world, &config, Arc::new(dataset));
-    world.spawn_batch(benchmark_gaussians(n, 42).into_iter().map(GaussianParams::bundle).collect::<Vec<_>>());
+    world.spawn_batch(
+        benchmark_gaussians(n, 42)
+            .into_iter()
+            .map(GaussianParams::bundle)
+            .collect::<Vec<_>>(),
+    );
     world
 }
 
@@ -86,7 +123,9 @@ fn bench_iteration(c: &mut Criterion) {
         let mut world = world_with(n);
         let mut schedule = training_schedule();
         schedule.run(&mut world); // warm-up: buffers reach their size
-        group.bench_function(format!("{n}_gaussians"), |b| b.iter(|| schedule.run(&mut world)));
+        group.bench_function(format!("{n}_gaussians"), |b| {
+            b.iter(|| schedule.run(&mut world))
+        });
     }
     group.finish();
 }

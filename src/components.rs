@@ -5,12 +5,11 @@
 //! the pruner treat every field alike.
 
 use bevy_ecs::component::{Component, Mutable};
-use bevy_ecs::prelude::*;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-const FOURIER_TERMS: usize = 4;
-const SH_COEFFS: usize = 16;
+use crate::model::deform::FOURIER_TERMS;
+use crate::model::sh::SH_COEFFS;
 
 /// Canonical mean μ.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -184,17 +183,59 @@ pub struct GaussianParams {
 
 impl GaussianParams {
     /// The full component bundle for spawning this Gaussian.
-    pub fn bundle(self) -> impl Bundle {
+    pub fn bundle(self) -> GaussianBundle {
         (
-            (self.position, self.fourier, self.temporal, self.opacity, self.rotation, self.scale, self.color),
+            (
+                self.position,
+                self.fourier,
+                self.temporal,
+                self.opacity,
+                self.rotation,
+                self.scale,
+                self.color,
+            ),
             fresh_optimizer_state(),
-            (GradAccum::default(), WarpedTime::default(), Deformed::default(), SplatSlot::default()),
+            (
+                GradAccum::default(),
+                WarpedTime::default(),
+                Deformed::default(),
+                SplatSlot::default(),
+            ),
         )
     }
 }
 
+/// Every component of one Gaussian.
+pub type GaussianBundle = (
+    (Position, Fourier, Temporal, Opacity, Rotation, Scale, Color),
+    OptimizerState,
+    (GradAccum, WarpedTime, Deformed, SplatSlot),
+);
+
+/// Gradients and Adam moments of every parameter group.
+pub type OptimizerState = (
+    (
+        Grad<Position>,
+        Grad<Fourier>,
+        Grad<Temporal>,
+        Grad<Opacity>,
+        Grad<Rotation>,
+        Grad<Scale>,
+        Grad<Color>,
+    ),
+    (
+        Adam<Position>,
+        Adam<Fourier>,
+        Adam<Temporal>,
+        Adam<Opacity>,
+        Adam<Rotation>,
+        Adam<Scale>,
+        Adam<Color>,
+    ),
+);
+
 /// Zeroed gradients and Adam moments for every parameter group (for new Gaussians).
-pub fn fresh_optimizer_state() -> impl Bundle {
+pub fn fresh_optimizer_state() -> OptimizerState {
     (
         (
             Grad::<Position>::default(),

@@ -6,8 +6,8 @@ pub mod io;
 pub mod metrics;
 pub mod model;
 pub mod raster;
-// LEAD-PENDING pub mod resources;
+pub mod resources;
 pub mod scene;
-// LEAD-PENDING pub mod train;
-// LEAD-PENDING #[path = "../systems/mod.rs"]
-// LEAD-PENDING pub mod systems;
+#[path = "../systems/mod.rs"]
+pub mod systems;
+pub mod train;

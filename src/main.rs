@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use tadgs::data::Dataset;
 use tadgs::io::image::Image;
-use tadgs::scene::{DataSource, SceneConfig, load_scene, set_override};
+use tadgs::scene::{DataSource, SceneConfig, apply_overrides, load_scene, set_override};
 use tadgs::train::{Trainer, ViewMetrics, mean};
 
 /// Dynamic (4D) Gaussian splatting with temporally aware densification (VAD, TAT, TOW).
@@ -64,12 +64,19 @@ fn main() -> Result<()> {
         _ => "trace",
     };
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| level.into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| level.into()),
+        )
         .with_target(false)
         .without_time()
         .init();
     match cli.command {
-        Command::Train { scene, iterations, overrides, output } => {
+        Command::Train {
+            scene,
+            iterations,
+            overrides,
+            output,
+        } => {
             let mut config = load_with_overrides(&scene, &overrides)?;
             if let Some(n) = iterations {
                 set_override(&mut config, "train.iterations", &n.to_string())?;
@@ -79,7 +86,10 @@ fn main() -> Result<()> {
         }
         Command::Info { scene, overrides } => {
             let config = load_with_overrides(&scene, &overrides)?;
-            println!("{}", ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default())?);
+            println!(
+                "{}",
+                ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default())?
+            );
             Ok(())
         }
     }
@@ -87,18 +97,16 @@ fn main() -> Result<()> {
 
 fn load_with_overrides(path: &Path, overrides: &[String]) -> Result<SceneConfig> {
     let mut config = load_scene(path)?;
-    for item in overrides {
-        let Some((key, value)) = item.split_once('=') else {
-            bail!("--set expects KEY=VALUE, got `{item}`");
-        };
-        set_override(&mut config, key.trim(), value.trim())?;
-    }
+    apply_overrides(&mut config, overrides)?;
     Ok(config)
 }
 
 fn load_dataset(config: &SceneConfig) -> Result<Dataset> {
     match &config.data {
-        DataSource::Synthetic(scene) => scene.build().map_err(anyhow::Error::msg).context("building the synthetic scene"),
+        DataSource::Synthetic(scene) => scene
+            .build()
+            .map_err(anyhow::Error::msg)
+            .context("building the synthetic scene"),
     }
 }
 
@@ -120,10 +128,16 @@ fn train(config: &SceneConfig, output: &Path, quiet: bool) -> Result<()> {
     tracing::info!("{} initial Gaussians", trainer.gaussian_count());
 
     let iterations = config.train.iterations;
-    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(iterations as u64) };
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(iterations as u64)
+    };
     bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise}<{eta_precise}] {per_sec} {msg}")
-            .expect("valid template"),
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} [{elapsed_precise}<{eta_precise}] {per_sec} {msg}",
+        )
+        .expect("valid template"),
     );
     let train_start = Instant::now();
     for i in 1..=iterations {
@@ -131,16 +145,26 @@ fn train(config: &SceneConfig, output: &Path, quiet: bool) -> Result<()> {
         if i % 10 == 0 || i == iterations {
             let state = trainer.state();
             bar.set_position(i as u64);
-            bar.set_message(format!("loss {:.4}  gaussians {}", state.loss.total, trainer.gaussian_count()));
+            bar.set_message(format!(
+                "loss {:.4}  gaussians {}",
+                state.loss.total,
+                trainer.gaussian_count()
+            ));
             if !state.loss.total.is_finite() {
                 bar.abandon();
-                bail!("the loss became {} at iteration {i}: training diverged", state.loss.total);
+                bail!(
+                    "the loss became {} at iteration {i}: training diverged",
+                    state.loss.total
+                );
             }
         }
         let eval = config.train.eval_interval;
         if eval > 0 && i % eval == 0 && i < iterations {
             let metrics = trainer.evaluate(|_, _, _| {});
-            bar.println(format!("iteration {i}: held-out PSNR {:.2} dB", mean(metrics.iter().map(|m| m.psnr)).unwrap_or(f32::NAN)));
+            bar.println(format!(
+                "iteration {i}: held-out PSNR {:.2} dB",
+                mean(metrics.iter().map(|m| m.psnr)).unwrap_or(f32::NAN)
+            ));
         }
     }
     bar.finish_and_clear();
@@ -160,7 +184,13 @@ fn train(config: &SceneConfig, output: &Path, quiet: bool) -> Result<()> {
         return Err(e.into());
     }
     let eval_time = render_start.elapsed().as_secs_f32();
-    let summary = Summary::new(config, &metrics, trainer.gaussian_count(), train_time, eval_time);
+    let summary = Summary::new(
+        config,
+        &metrics,
+        trainer.gaussian_count(),
+        train_time,
+        eval_time,
+    );
     write_metrics(output, &summary, &metrics)?;
     summary.print(output);
     Ok(())
@@ -168,10 +198,18 @@ fn train(config: &SceneConfig, output: &Path, quiet: bool) -> Result<()> {
 
 /// Render on the left, ground truth on the right.
 fn side_by_side(render: &Image, gt: &Image) -> Image {
-    let mut out = Image::filled(render.width + gt.width, render.height.max(gt.height), [0.0; 3]);
+    let mut out = Image::filled(
+        render.width + gt.width,
+        render.height.max(gt.height),
+        [0.0; 3],
+    );
     for y in 0..out.height {
         for x in 0..out.width {
-            let pixel = if x < render.width { (y < render.height).then(|| render.get(x, y)) } else { (y < gt.height).then(|| gt.get(x - render.width, y)) };
+            let pixel = if x < render.width {
+                (y < render.height).then(|| render.get(x, y))
+            } else {
+                (y < gt.height).then(|| gt.get(x - render.width, y))
+            };
             out.data[y * out.width + x] = pixel.unwrap_or([0.0; 3]);
         }
     }
@@ -193,7 +231,13 @@ struct Summary {
 }
 
 impl Summary {
-    fn new(config: &SceneConfig, metrics: &[ViewMetrics], gaussians: usize, train_seconds: f32, eval_seconds: f32) -> Self {
+    fn new(
+        config: &SceneConfig,
+        metrics: &[ViewMetrics],
+        gaussians: usize,
+        train_seconds: f32,
+        eval_seconds: f32,
+    ) -> Self {
         Self {
             scene: config.name.clone(),
             iterations: config.train.iterations,
@@ -211,12 +255,21 @@ impl Summary {
     fn print(&self, output: &Path) {
         let show = |v: Option<f32>| v.map_or("n/a".to_string(), |v| format!("{v:.2} dB"));
         println!("scene            {}", self.scene);
-        println!("iterations       {}  (VAD {}, TAT {}, TOW {})", self.iterations, self.vad, self.tat, self.tow);
+        println!(
+            "iterations       {}  (VAD {}, TAT {}, TOW {})",
+            self.iterations, self.vad, self.tat, self.tow
+        );
         println!("held-out PSNR    {}", show(self.psnr));
-        println!("dynamic PSNR     {}  (exact motion masks)", show(self.dynamic_psnr));
+        println!(
+            "dynamic PSNR     {}  (exact motion masks)",
+            show(self.dynamic_psnr)
+        );
         println!("Gaussians        {}", self.gaussians);
         println!("training time    {:.1} s", self.train_seconds);
-        println!("render speed     {:.1} frames/s (with metrics)", self.render_fps);
+        println!(
+            "render speed     {:.1} frames/s (with metrics)",
+            self.render_fps
+        );
         println!("renders          {}", output.join("heldout").display());
     }
 }
@@ -227,11 +280,17 @@ fn write_metrics(output: &Path, summary: &Summary, metrics: &[ViewMetrics]) -> R
         .map(|m| serde_json::json!({"camera": m.camera, "frame": m.frame, "psnr": m.psnr, "dynamic_psnr": m.masked_psnr}))
         .collect();
     let json = serde_json::json!({"summary": summary, "views": views});
-    write_atomic(&output.join("metrics.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
+    write_atomic(
+        &output.join("metrics.json"),
+        serde_json::to_string_pretty(&json)?.as_bytes(),
+    )?;
     let mut csv = String::from("camera,frame,psnr,dynamic_psnr\n");
     for m in metrics {
         let dynamic = m.masked_psnr.map_or(String::new(), |v| v.to_string());
-        csv.push_str(&format!("{},{},{},{}\n", m.camera, m.frame, m.psnr, dynamic));
+        csv.push_str(&format!(
+            "{},{},{},{}\n",
+            m.camera, m.frame, m.psnr, dynamic
+        ));
     }
     write_atomic(&output.join("metrics.csv"), csv.as_bytes())
 }

@@ -12,7 +12,9 @@ use crate::metrics::loss::{LossScratch, LossValue};
 use crate::model::deform::TemporalOpacity;
 use crate::model::warp::TimeWarp;
 use crate::raster::{Rasterizer, RenderOutput, Splat, SplatGrad};
-use crate::scene::{DensifyConfig, ModelConfig, OpacityModel, PhaseModel, SceneConfig, TrainConfig};
+use crate::scene::{
+    DensifyConfig, ModelConfig, OpacityModel, PhaseModel, SceneConfig, TrainConfig,
+};
 
 /// Settings of a run, resolved from the scene file and the dataset.
 #[derive(Resource, Clone, Debug)]
@@ -35,7 +37,11 @@ impl Settings {
     /// Resolves a scene's settings for a sequence of `frame_count` frames with the given extent.
     pub fn new(scene: &SceneConfig, frame_count: usize, extent: f32) -> Self {
         let tow = scene.model.tow;
-        let warp = if tow.enabled { TimeWarp::tow(tow.window_frames, frame_count, tow.rho) } else { TimeWarp::Identity };
+        let warp = if tow.enabled {
+            TimeWarp::tow(tow.window_frames, frame_count, tow.rho)
+        } else {
+            TimeWarp::Identity
+        };
         let opacity = match scene.model.opacity {
             OpacityModel::Rbf => TemporalOpacity::Rbf,
             OpacityModel::Asymmetric => TemporalOpacity::asymmetric(frame_count),

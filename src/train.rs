@@ -6,8 +6,12 @@ use std::sync::Arc;
 use bevy_ecs::prelude::*;
 use rand::SeedableRng;
 
-use crate::components::{Color, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal};
-use crate::data::init::{InitPoint, anchor_frames, nearest_neighbour_scales, random_points_in_view, scene_extent};
+use crate::components::{
+    Color, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
+};
+use crate::data::init::{
+    InitPoint, anchor_frames, nearest_neighbour_scales, random_points_in_view, scene_extent,
+};
 use crate::data::{Camera, Dataset};
 use crate::io::image::Image;
 use crate::metrics::psnr::{masked_psnr, psnr};
@@ -21,7 +25,10 @@ use crate::systems::{render_schedule, training_schedule};
 /// Makes bevy's compute task pool (used by `par_iter_mut`) once per process.
 pub fn init_task_pool() {
     bevy_tasks::ComputeTaskPool::get_or_init(|| {
-        bevy_tasks::TaskPoolBuilder::new().num_threads(rayon::current_num_threads()).thread_name("tadgs".into()).build()
+        bevy_tasks::TaskPoolBuilder::new()
+            .num_threads(rayon::current_num_threads())
+            .thread_name("tadgs".into())
+            .build()
     });
 }
 
@@ -30,7 +37,12 @@ pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dat
     init_task_pool();
     let settings = Settings::new(scene, dataset.frame_count, scene_extent(&dataset.cameras));
     let first = dataset.train_cameras.first().copied().unwrap_or(0);
-    world.insert_resource(ViewSample { camera: dataset.cameras[first], camera_index: Some(first), frame: 0, time: 0.0 });
+    world.insert_resource(ViewSample {
+        camera: dataset.cameras[first],
+        camera_index: Some(first),
+        frame: 0,
+        time: 0.0,
+    });
     world.insert_resource(settings);
     world.insert_resource(TrainState::default());
     world.insert_resource(TrainingViews(dataset));
@@ -45,9 +57,18 @@ pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dat
 pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> usize {
     let settings = world.resource::<Settings>().clone();
     let dataset = world.resource::<TrainingViews>().0.clone();
-    let train_cameras: Vec<Camera> = dataset.train_cameras.iter().map(|&c| dataset.cameras[c]).collect();
+    let train_cameras: Vec<Camera> = dataset
+        .train_cameras
+        .iter()
+        .map(|&c| dataset.cameras[c])
+        .collect();
     let init = &scene.init;
-    let temporal_scale = init_temporal_raw(settings.opacity, init.lifespan_half_frames, dataset.frame_count, &settings.warp);
+    let temporal_scale = init_temporal_raw(
+        settings.opacity,
+        init.lifespan_half_frames,
+        dataset.frame_count,
+        &settings.warp,
+    );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(scene.train.seed ^ 0x5eed);
     let mut spawned = 0;
     for frame in anchor_frames(dataset.frame_count, init.anchor_spacing) {
@@ -60,7 +81,13 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> usize 
 }
 
 /// Spawns one Gaussian per point at temporal centre `center`.
-pub fn spawn_points(world: &mut World, points: &[InitPoint], center: f32, temporal_scale: [f32; 2], opacity: f32) {
+pub fn spawn_points(
+    world: &mut World,
+    points: &[InitPoint],
+    center: f32,
+    temporal_scale: [f32; 2],
+    opacity: f32,
+) {
     let positions: Vec<glam::Vec3> = points.iter().map(|p| p.position).collect();
     let scales = nearest_neighbour_scales(&positions);
     let bundles: Vec<_> = points
@@ -70,12 +97,25 @@ pub fn spawn_points(world: &mut World, points: &[InitPoint], center: f32, tempor
             let mut color = Color::default();
             color.sh[0] = p.color.map(rgb_to_sh_dc);
             GaussianParams {
-                position: Position { mean: p.position.to_array() },
+                position: Position {
+                    mean: p.position.to_array(),
+                },
                 fourier: Fourier::default(),
-                temporal: Temporal { center, scale: temporal_scale },
-                opacity: Opacity { logit: logit(opacity) },
-                rotation: Rotation { c0: [1.0, 0.0, 0.0, 0.0], c1: [0.0; 4] },
-                scale: Scale { d0: [s.ln(); 3], d1: [0.0; 3] },
+                temporal: Temporal {
+                    center,
+                    scale: temporal_scale,
+                },
+                opacity: Opacity {
+                    logit: logit(opacity),
+                },
+                rotation: Rotation {
+                    c0: [1.0, 0.0, 0.0, 0.0],
+                    c1: [0.0; 4],
+                },
+                scale: Scale {
+                    d0: [s.ln(); 3],
+                    d1: [0.0; 3],
+                },
                 color,
             }
             .bundle()
@@ -107,7 +147,11 @@ impl Trainer {
         let mut world = World::new();
         insert_resources(&mut world, scene, dataset);
         spawn_initial_gaussians(&mut world, scene);
-        Self { world, train: training_schedule(), render: render_schedule() }
+        Self {
+            world,
+            train: training_schedule(),
+            render: render_schedule(),
+        }
     }
 
     /// Runs one training iteration.
@@ -128,14 +172,22 @@ impl Trainer {
     /// Renders the model from `camera` at normalised time `time`.
     pub fn render(&mut self, camera: &Camera, time: f32) -> RenderOutput {
         let frame = self.world.resource::<ViewSample>().frame;
-        *self.world.resource_mut::<ViewSample>() = ViewSample { camera: *camera, camera_index: None, frame, time };
+        *self.world.resource_mut::<ViewSample>() = ViewSample {
+            camera: *camera,
+            camera_index: None,
+            frame,
+            time,
+        };
         self.render.run(&mut self.world);
         self.world.resource::<SplatBuffers>().render.clone()
     }
 
     /// Renders every held-out camera at every frame and compares with the ground truth.
     /// `on_view` sees each render next to its ground truth (for saving images).
-    pub fn evaluate(&mut self, mut on_view: impl FnMut(&ViewMetrics, &Image, &Image)) -> Vec<ViewMetrics> {
+    pub fn evaluate(
+        &mut self,
+        mut on_view: impl FnMut(&ViewMetrics, &Image, &Image),
+    ) -> Vec<ViewMetrics> {
         let dataset = self.world.resource::<TrainingViews>().0.clone();
         let mut metrics = Vec::new();
         for &camera in &dataset.test_cameras {
@@ -159,6 +211,8 @@ impl Trainer {
 
 /// Mean of the finite values (None when there are none).
 pub fn mean(values: impl Iterator<Item = f32>) -> Option<f32> {
-    let (sum, n) = values.filter(|v| v.is_finite()).fold((0.0f64, 0usize), |(s, n), v| (s + v as f64, n + 1));
+    let (sum, n) = values
+        .filter(|v| v.is_finite())
+        .fold((0.0f64, 0usize), |(s, n), v| (s + v as f64, n + 1));
     (n > 0).then(|| (sum / n as f64) as f32)
 }

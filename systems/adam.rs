@@ -4,7 +4,9 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
-use crate::components::{Adam, Color, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal};
+use crate::components::{
+    Adam, Color, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal,
+};
 use crate::resources::{Settings, TrainState};
 use crate::scene::LearningRates;
 
@@ -24,21 +26,30 @@ pub trait ParamGroup: Param {
 
 impl ParamGroup for Position {
     fn learning_rates(_: &LearningRates, position_lr: f32) -> Self {
-        Self { mean: [position_lr; 3] }
+        Self {
+            mean: [position_lr; 3],
+        }
     }
 }
 
 impl ParamGroup for Fourier {
     fn learning_rates(lr: &LearningRates, position_lr: f32) -> Self {
         let coeff = [[lr.fourier_cos_sin * position_lr; 3]; 4];
-        Self { cos: coeff, sin: coeff, phase: [lr.fourier_phase * position_lr; 4] }
+        Self {
+            cos: coeff,
+            sin: coeff,
+            phase: [lr.fourier_phase * position_lr; 4],
+        }
     }
 }
 
 impl ParamGroup for Temporal {
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
         // The temporal centre is fixed at initialisation.
-        Self { center: 0.0, scale: [lr.temporal_scale; 2] }
+        Self {
+            center: 0.0,
+            scale: [lr.temporal_scale; 2],
+        }
     }
 }
 
@@ -50,19 +61,27 @@ impl ParamGroup for Opacity {
 
 impl ParamGroup for Rotation {
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
-        Self { c0: [lr.rotation; 4], c1: [lr.rotation_velocity; 4] }
+        Self {
+            c0: [lr.rotation; 4],
+            c1: [lr.rotation_velocity; 4],
+        }
     }
 }
 
 impl ParamGroup for Scale {
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
-        Self { d0: [lr.scale; 3], d1: [lr.scale_velocity; 3] }
+        Self {
+            d0: [lr.scale; 3],
+            d1: [lr.scale_velocity; 3],
+        }
     }
 }
 
 impl ParamGroup for Color {
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
-        let mut rates = Color { sh: [[lr.sh_dc / lr.sh_rest_divisor; 3]; 16] };
+        let mut rates = Color {
+            sh: [[lr.sh_dc / lr.sh_rest_divisor; 3]; 16],
+        };
         rates.sh[0] = [lr.sh_dc; 3];
         rates
     }
@@ -76,22 +95,41 @@ pub fn position_lr(lr: &LearningRates, iteration: u32, iterations: u32, extent: 
 }
 
 /// One Adam step on every Gaussian's `P`, with bias correction for the global step.
-pub fn adam_step<P: ParamGroup>(settings: Res<Settings>, state: Res<TrainState>, mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>)>) {
+pub fn adam_step<P: ParamGroup>(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>)>,
+) {
     let lr = &settings.train.lr;
-    let rates = P::learning_rates(lr, position_lr(lr, state.iteration, settings.train.iterations, settings.extent));
+    let rates = P::learning_rates(
+        lr,
+        position_lr(
+            lr,
+            state.iteration,
+            settings.train.iterations,
+            settings.extent,
+        ),
+    );
     let step = state.iteration.max(1) as i32;
     let bias1 = 1.0 - BETA1.powi(step);
     let bias2 = 1.0 - BETA2.powi(step);
-    params.par_iter_mut().for_each(|(mut value, grad, mut adam)| {
-        let adam = &mut *adam;
-        let (m, v) = (adam.m.values_mut(), adam.v.values_mut());
-        for (i, (x, g)) in value.values_mut().iter_mut().zip(grad.0.values()).enumerate() {
-            m[i] = BETA1 * m[i] + (1.0 - BETA1) * g;
-            v[i] = BETA2 * v[i] + (1.0 - BETA2) * g * g;
-            let step_size = rates.values()[i] / bias1;
-            *x -= step_size * m[i] / ((v[i] / bias2).sqrt() + EPSILON);
-        }
-    });
+    params
+        .par_iter_mut()
+        .for_each(|(mut value, grad, mut adam)| {
+            let adam = &mut *adam;
+            let (m, v) = (adam.m.values_mut(), adam.v.values_mut());
+            for (i, (x, g)) in value
+                .values_mut()
+                .iter_mut()
+                .zip(grad.0.values())
+                .enumerate()
+            {
+                m[i] = BETA1 * m[i] + (1.0 - BETA1) * g;
+                v[i] = BETA2 * v[i] + (1.0 - BETA2) * g * g;
+                let step_size = rates.values()[i] / bias1;
+                *x -= step_size * m[i] / ((v[i] / bias2).sqrt() + EPSILON);
+            }
+        });
 }
 
 /// The Adam systems of every parameter group.

@@ -4,8 +4,12 @@ use bevy_ecs::prelude::*;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::components::{Color, Deformed, Fourier, Grad, Opacity, Position, Rotation, Scale, SplatSlot, Temporal};
-use crate::model::deform::{fourier_offset_backward, rotation_at_backward, scale_at_backward, temporal_opacity_backward};
+use crate::components::{
+    Color, Deformed, Fourier, Grad, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
+};
+use crate::model::deform::{
+    fourier_offset_backward, rotation_at_backward, scale_at_backward, temporal_opacity_backward,
+};
 use crate::model::project::project_backward;
 use crate::model::sh::sh_to_rgb_backward;
 use crate::resources::{DeformedGrad, LossImage, Settings, SplatBuffers, TrainState, ViewSample};
@@ -13,11 +17,20 @@ use crate::systems::deform::DeformInputs;
 
 /// Back-propagates the image gradient through blending and projection to each slot's deformed
 /// Gaussian, and records the NDC-space 2D mean gradient norm used by densification.
-pub fn backward_splats(sample: Res<ViewSample>, loss: Res<LossImage>, mut buffers: ResMut<SplatBuffers>) {
+pub fn backward_splats(
+    sample: Res<ViewSample>,
+    loss: Res<LossImage>,
+    mut buffers: ResMut<SplatBuffers>,
+) {
     let buffers = &mut *buffers;
     let camera = sample.camera;
     let width = camera.width as usize;
-    buffers.rasterizer.backward(&buffers.splats, &loss.d_color, width, &mut buffers.splat_grads);
+    buffers.rasterizer.backward(
+        &buffers.splats,
+        &loss.d_color,
+        width,
+        &mut buffers.splat_grads,
+    );
 
     // NDC spans the image over [−1, 1]: one pixel is 2/W (resp. 2/H) NDC units.
     let half = glam::Vec2::new(0.5 * camera.width as f32, 0.5 * camera.height as f32);
@@ -25,7 +38,13 @@ pub fn backward_splats(sample: Res<ViewSample>, loss: Res<LossImage>, mut buffer
         .splats
         .par_iter()
         .zip(&buffers.splat_grads)
-        .map(|(s, g)| if s.visible { (g.mean2d * half).length() } else { 0.0 })
+        .map(|(s, g)| {
+            if s.visible {
+                (g.mean2d * half).length()
+            } else {
+                0.0
+            }
+        })
         .collect_into_vec(&mut buffers.ndc_grad_norm);
 
     buffers
@@ -37,8 +56,21 @@ pub fn backward_splats(sample: Res<ViewSample>, loss: Res<LossImage>, mut buffer
             if !s.visible {
                 return DeformedGrad::default();
             }
-            let p = project_backward(Vec3::from_array(d.mean), d.rotation, Vec3::from_array(d.scale), &camera, g.mean2d, g.conic);
-            DeformedGrad { mean: p.mean, rotation: p.quat, scale: p.scale, opacity: g.opacity, color: g.color }
+            let p = project_backward(
+                Vec3::from_array(d.mean),
+                d.rotation,
+                Vec3::from_array(d.scale),
+                &camera,
+                g.mean2d,
+                g.conic,
+            );
+            DeformedGrad {
+                mean: p.mean,
+                rotation: p.quat,
+                scale: p.scale,
+                opacity: g.opacity,
+                color: g.color,
+            }
         })
         .collect_into_vec(&mut buffers.deformed_grads);
 }
@@ -67,30 +99,62 @@ pub fn backward_parameters(
     let scale_motion = settings.model.scale_motion;
     let sh_degree = state.sh_degree;
     let eye = sample.camera.center();
-    gaussians.par_iter_mut().for_each(|(inputs, deformed, slot, grads)| {
-        let (_, fourier, temporal, opacity, rotation, scale, color, warped) = inputs;
-        let (mut g_pos, mut g_fourier, mut g_temporal, mut g_opacity, mut g_rotation, mut g_scale, mut g_color) = grads;
-        let d = buffers.deformed_grads[slot.0 as usize];
-        let dtw = warped.dtw;
+    gaussians
+        .par_iter_mut()
+        .for_each(|(inputs, deformed, slot, grads)| {
+            let (_, fourier, temporal, opacity, rotation, scale, color, warped) = inputs;
+            let (
+                mut g_pos,
+                mut g_fourier,
+                mut g_temporal,
+                mut g_opacity,
+                mut g_rotation,
+                mut g_scale,
+                mut g_color,
+            ) = grads;
+            let d = buffers.deformed_grads[slot.0 as usize];
+            let dtw = warped.dtw;
 
-        let (d_sh, d_dir) = sh_to_rgb_backward(sh_degree, &color.sh, deformed.mean() - eye, d.color);
-        let d_mean = d.mean + d_dir;
-        let f = fourier_offset_backward(&fourier.cos, &fourier.sin, &fourier.phase, shared_phase, dtw, d_mean);
-        let (d_c0, d_c1) = rotation_at_backward(rotation.c0, rotation.c1, dtw, d.rotation);
-        let scale_velocity = if scale_motion { scale.d1 } else { [0.0; 3] };
-        let (d_d0, mut d_d1) = scale_at_backward(scale.d0, scale_velocity, dtw, d.scale);
-        if !scale_motion {
-            d_d1 = [0.0; 3];
-        }
-        let (d_logit, d_raw) = temporal_opacity_backward(opacity_model, opacity.logit, temporal.scale, dtw, d.opacity);
+            let (d_sh, d_dir) =
+                sh_to_rgb_backward(sh_degree, &color.sh, deformed.mean() - eye, d.color);
+            let d_mean = d.mean + d_dir;
+            let f = fourier_offset_backward(
+                &fourier.cos,
+                &fourier.sin,
+                &fourier.phase,
+                shared_phase,
+                dtw,
+                d_mean,
+            );
+            let (d_c0, d_c1) = rotation_at_backward(rotation.c0, rotation.c1, dtw, d.rotation);
+            let scale_velocity = if scale_motion { scale.d1 } else { [0.0; 3] };
+            let (d_d0, mut d_d1) = scale_at_backward(scale.d0, scale_velocity, dtw, d.scale);
+            if !scale_motion {
+                d_d1 = [0.0; 3];
+            }
+            let (d_logit, d_raw) = temporal_opacity_backward(
+                opacity_model,
+                opacity.logit,
+                temporal.scale,
+                dtw,
+                d.opacity,
+            );
 
-        g_pos.0 = Position { mean: d_mean.to_array() };
-        g_fourier.0 = Fourier { cos: f.cos, sin: f.sin, phase: f.phase };
-        g_temporal.0 = Temporal { center: 0.0, scale: d_raw };
-        g_opacity.0 = Opacity { logit: d_logit };
-        g_rotation.0 = Rotation { c0: d_c0, c1: d_c1 };
-        g_scale.0 = Scale { d0: d_d0, d1: d_d1 };
-        g_color.0 = Color { sh: d_sh };
-    });
+            g_pos.0 = Position {
+                mean: d_mean.to_array(),
+            };
+            g_fourier.0 = Fourier {
+                cos: f.cos,
+                sin: f.sin,
+                phase: f.phase,
+            };
+            g_temporal.0 = Temporal {
+                center: 0.0,
+                scale: d_raw,
+            };
+            g_opacity.0 = Opacity { logit: d_logit };
+            g_rotation.0 = Rotation { c0: d_c0, c1: d_c1 };
+            g_scale.0 = Scale { d0: d_d0, d1: d_d1 };
+            g_color.0 = Color { sh: d_sh };
+        });
 }
-

@@ -3,14 +3,24 @@
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 
-use crate::components::{Color, Deformed, Fourier, Opacity, Position, Rotation, Scale, Temporal, WarpedTime};
+use crate::components::{
+    Color, Deformed, Fourier, Opacity, Position, Rotation, Scale, Temporal, WarpedTime,
+};
 use crate::model::deform::{fourier_offset, rotation_at, scale_at, temporal_opacity};
 use crate::model::sh::sh_to_rgb;
 use crate::resources::{Settings, TrainState, ViewSample};
 
 /// The parameter components the deformation reads.
-pub type DeformInputs<'a> =
-    (&'a Position, &'a Fourier, &'a Temporal, &'a Opacity, &'a Rotation, &'a Scale, &'a Color, &'a WarpedTime);
+pub type DeformInputs<'a> = (
+    &'a Position,
+    &'a Fourier,
+    &'a Temporal,
+    &'a Opacity,
+    &'a Rotation,
+    &'a Scale,
+    &'a Color,
+    &'a WarpedTime,
+);
 
 /// Evaluates every Gaussian at the sampled time into its [`Deformed`] component.
 pub fn deform(
@@ -24,16 +34,25 @@ pub fn deform(
     let scale_motion = settings.model.scale_motion;
     let sh_degree = state.sh_degree;
     let eye = sample.camera.center();
-    gaussians.par_iter_mut().for_each(|((pos, fourier, temporal, opacity, rotation, scale, color, warped), mut out)| {
-        let dtw = warped.dtw;
-        let mean = Vec3::from_array(pos.mean) + fourier_offset(&fourier.cos, &fourier.sin, &fourier.phase, shared_phase, dtw);
-        let scale_velocity = if scale_motion { scale.d1 } else { [0.0; 3] };
-        *out = Deformed {
-            mean: mean.to_array(),
-            rotation: rotation_at(rotation.c0, rotation.c1, dtw),
-            scale: scale_at(scale.d0, scale_velocity, dtw).to_array(),
-            opacity: temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw),
-            color: sh_to_rgb(sh_degree, &color.sh, mean - eye),
-        };
-    });
+    gaussians.par_iter_mut().for_each(
+        |((pos, fourier, temporal, opacity, rotation, scale, color, warped), mut out)| {
+            let dtw = warped.dtw;
+            let mean = Vec3::from_array(pos.mean)
+                + fourier_offset(
+                    &fourier.cos,
+                    &fourier.sin,
+                    &fourier.phase,
+                    shared_phase,
+                    dtw,
+                );
+            let scale_velocity = if scale_motion { scale.d1 } else { [0.0; 3] };
+            *out = Deformed {
+                mean: mean.to_array(),
+                rotation: rotation_at(rotation.c0, rotation.c1, dtw),
+                scale: scale_at(scale.d0, scale_velocity, dtw).to_array(),
+                opacity: temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw),
+                color: sh_to_rgb(sh_degree, &color.sh, mean - eye),
+            };
+        },
+    );
 }

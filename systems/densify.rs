@@ -7,7 +7,10 @@ use bevy_ecs::system::ScheduleSystem;
 use glam::{Quat, Vec3};
 use rand_distr::{Distribution, StandardNormal};
 
-use crate::components::{Adam, Deformed, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal, fresh_optimizer_state};
+use crate::components::{
+    Adam, Deformed, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
+    fresh_optimizer_state,
+};
 use crate::model::deform::{lifespan_fraction, logit, sigmoid};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
 use crate::scene::TatForm;
@@ -35,20 +38,32 @@ pub fn accumulate(accum: &mut GradAccum, grad_norm: f32, sigma: f32, lifespan: f
 
 /// The densification signal ḡ: weighted mean gradient (0 when never seen).
 pub fn mean_gradient(accum: &GradAccum) -> f32 {
-    if accum.weight > 0.0 { accum.weighted_grad / accum.weight } else { 0.0 }
+    if accum.weight > 0.0 {
+        accum.weighted_grad / accum.weight
+    } else {
+        0.0
+    }
 }
 
 /// The average normalised lifespan ψ̄ over the counted views (1 when never seen).
 pub fn mean_lifespan(accum: &GradAccum) -> f32 {
-    if accum.count > 0 { accum.lifespan_sum / accum.count as f32 } else { 1.0 }
+    if accum.count > 0 {
+        accum.lifespan_sum / accum.count as f32
+    } else {
+        1.0
+    }
 }
 
 /// TAT: the threshold of a Gaussian with mean normalised lifespan ψ̄ ∈ [0, 1].
 pub fn tat_threshold(form: TatForm, base: f32, lifespan: f32) -> f32 {
     let lifespan = lifespan.clamp(0.0, 1.0);
     match form {
-        TatForm::Paper { beta, alpha } => base * (1.0 / (1.0 + beta * (1.0 - lifespan))).powf(alpha),
-        TatForm::Implementation { beta, alpha } => base * (beta + (1.0 - beta) * lifespan.powf(alpha)),
+        TatForm::Paper { beta, alpha } => {
+            base * (1.0 / (1.0 + beta * (1.0 - lifespan))).powf(alpha)
+        }
+        TatForm::Implementation { beta, alpha } => {
+            base * (beta + (1.0 - beta) * lifespan.powf(alpha))
+        }
     }
 }
 
@@ -80,16 +95,24 @@ pub fn accumulate_stats(
     let vad = settings.densify.vad;
     let min_opacity = settings.densify.vad_min_opacity;
     let (warp, model) = (settings.warp, settings.opacity);
-    gaussians.par_iter_mut().for_each(|(slot, deformed, temporal, mut accum)| {
-        let slot = slot.0 as usize;
-        let splat = &buffers.splats[slot];
-        if !splat.visible || min_opacity.is_some_and(|m| deformed.opacity <= m) {
-            return;
-        }
-        let lifespan = lifespan_fraction(model, temporal.scale, temporal.center, &warp);
-        accumulate(&mut accum, buffers.ndc_grad_norm[slot], deformed.opacity, lifespan, vad);
-        accum.max_radius = accum.max_radius.max(splat.extent.max_element());
-    });
+    gaussians
+        .par_iter_mut()
+        .for_each(|(slot, deformed, temporal, mut accum)| {
+            let slot = slot.0 as usize;
+            let splat = &buffers.splats[slot];
+            if !splat.visible || min_opacity.is_some_and(|m| deformed.opacity <= m) {
+                return;
+            }
+            let lifespan = lifespan_fraction(model, temporal.scale, temporal.center, &warp);
+            accumulate(
+                &mut accum,
+                buffers.ndc_grad_norm[slot],
+                deformed.opacity,
+                lifespan,
+                vad,
+            );
+            accum.max_radius = accum.max_radius.max(splat.extent.max_element());
+        });
 }
 
 /// Clones small and splits large Gaussians whose ḡ exceeds their threshold, prunes transparent
@@ -99,32 +122,50 @@ pub fn densify_and_prune(
     settings: Res<Settings>,
     mut state: ResMut<TrainState>,
     mut rng: ResMut<Rng>,
-    mut gaussians: Query<(Entity, &mut Position, &Rotation, &mut Scale, &Opacity, &mut GradAccum)>,
+    mut gaussians: Query<(
+        Entity,
+        &mut Position,
+        &Rotation,
+        &mut Scale,
+        &Opacity,
+        &mut GradAccum,
+    )>,
 ) {
     let d = &settings.densify;
     let extent = settings.extent;
-    let mut report = DensifyReport { iteration: state.iteration, ..Default::default() };
+    let mut report = DensifyReport {
+        iteration: state.iteration,
+        ..Default::default()
+    };
     let mut population = gaussians.iter().len();
     let prune_big = d.prune_big && state.iteration > d.opacity_reset_interval;
     for (entity, mut position, rotation, mut scale, opacity, mut accum) in gaussians.iter_mut() {
         let stats = std::mem::take(&mut *accum);
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
         let transparent = sigmoid(opacity.logit) < d.prune_opacity;
-        let oversized = prune_big && (stats.max_radius > PRUNE_SCREEN_RADIUS || max_scale > PRUNE_WORLD_SCALE * extent);
+        let oversized = prune_big
+            && (stats.max_radius > PRUNE_SCREEN_RADIUS || max_scale > PRUNE_WORLD_SCALE * extent);
         if transparent || oversized {
             commands.entity(entity).despawn();
             report.pruned += 1;
             population -= 1;
             continue;
         }
-        let threshold = if d.tat { tat_threshold(d.tat_form, d.grad_threshold, mean_lifespan(&stats)) } else { d.grad_threshold };
+        let threshold = if d.tat {
+            tat_threshold(d.tat_form, d.grad_threshold, mean_lifespan(&stats))
+        } else {
+            d.grad_threshold
+        };
         if mean_gradient(&stats) < threshold || population >= d.max_gaussians {
             continue;
         }
         population += 1;
         if max_scale <= d.percent_dense * extent {
             // Clone: an identical copy with fresh optimiser state.
-            commands.entity(entity).clone_and_spawn().insert(fresh_optimizer_state());
+            commands
+                .entity(entity)
+                .clone_and_spawn()
+                .insert(fresh_optimizer_state());
             report.cloned += 1;
         } else {
             // Split: the Gaussian and its copy move to two samples of itself, scales / 1.6.
@@ -132,7 +173,11 @@ pub fn densify_and_prune(
             let q = rotation.c0;
             let rot = Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
             let mut sample = || {
-                let n = Vec3::new(StandardNormal.sample(&mut rng.0), StandardNormal.sample(&mut rng.0), StandardNormal.sample(&mut rng.0));
+                let n = Vec3::new(
+                    StandardNormal.sample(&mut rng.0),
+                    StandardNormal.sample(&mut rng.0),
+                    StandardNormal.sample(&mut rng.0),
+                );
                 Vec3::from_array(position.mean) + rot * (sigma * n)
             };
             let (a, b) = (sample(), sample());
@@ -141,7 +186,10 @@ pub fn densify_and_prune(
                 *s -= SPLIT_SCALE_DIVISOR.ln();
             }
             commands.entity(entity).insert(fresh_optimizer_state());
-            commands.entity(entity).clone_and_spawn().insert(Position { mean: b.to_array() });
+            commands
+                .entity(entity)
+                .clone_and_spawn()
+                .insert(Position { mean: b.to_array() });
             report.split += 1;
         }
     }
@@ -151,10 +199,12 @@ pub fn densify_and_prune(
 /// Caps every spatial opacity at 0.01 and clears its Adam moments.
 pub fn reset_opacity(mut gaussians: Query<(&mut Opacity, &mut Adam<Opacity>)>) {
     let cap = logit(OPACITY_RESET);
-    gaussians.par_iter_mut().for_each(|(mut opacity, mut adam)| {
-        opacity.logit = opacity.logit.min(cap);
-        *adam = Adam::default();
-    });
+    gaussians
+        .par_iter_mut()
+        .for_each(|(mut opacity, mut adam)| {
+            opacity.logit = opacity.logit.min(cap);
+            *adam = Adam::default();
+        });
 }
 
 /// The densification stage's systems with their run conditions.
@@ -201,10 +251,16 @@ mod tests {
     /// TAT equals τ_pos at full lifespan and decreases for shorter lifespans (both forms).
     #[test]
     fn tat_is_base_at_full_lifespan_and_lower_for_short_lived() {
-        let paper = TatForm::Paper { beta: 0.3, alpha: 1.0 };
+        let paper = TatForm::Paper {
+            beta: 0.3,
+            alpha: 1.0,
+        };
         assert!((tat_threshold(paper, 2e-4, 1.0) - 2e-4).abs() < 1e-12);
         assert!((tat_threshold(paper, 2e-4, 0.0) - 2e-4 / 1.3).abs() < 1e-10);
-        let implementation = TatForm::Implementation { beta: 0.75, alpha: 0.8 };
+        let implementation = TatForm::Implementation {
+            beta: 0.75,
+            alpha: 0.8,
+        };
         assert!((tat_threshold(implementation, 2e-4, 1.0) - 2e-4).abs() < 1e-12);
         assert!((tat_threshold(implementation, 2e-4, 0.0) - 1.5e-4).abs() < 1e-10);
         for form in [paper, implementation] {

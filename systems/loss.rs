@@ -14,9 +14,17 @@ pub fn loss(
     mut loss: ResMut<LossImage>,
     mut state: ResMut<TrainState>,
 ) {
-    let camera = sample.camera_index.expect("training views come from the dataset");
+    let camera = sample
+        .camera_index
+        .expect("training views come from the dataset");
     let gt = &views.0.images[camera][sample.frame];
     let loss = &mut *loss;
-    loss.value = training_loss(&mut loss.scratch, &buffers.render.image, gt, settings.train.lambda_dssim, &mut loss.d_color);
+    loss.value = training_loss(
+        &mut loss.scratch,
+        &buffers.render.image,
+        gt,
+        settings.train.lambda_dssim,
+        &mut loss.d_color,
+    );
     state.loss = loss.value;
 }

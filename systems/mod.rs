@@ -44,15 +44,50 @@ pub struct RenderView;
 /// stages with `.after(TrainSet::X).before(TrainSet::Y)`.
 pub fn add_training_systems(schedule: &mut Schedule) {
     use TrainSet::*;
-    schedule.configure_sets((SampleView, TimeWarp, Deform, Splat, Loss, Backward, Adam, Densify).chain());
-    schedule.add_systems((sample_view::advance_iteration, sample_view::sample_view).chain().in_set(SampleView));
+    schedule.configure_sets(
+        (
+            SampleView, TimeWarp, Deform, Splat, Loss, Backward, Adam, Densify,
+        )
+            .chain(),
+    );
+    schedule.add_systems(
+        (sample_view::advance_iteration, sample_view::sample_view)
+            .chain()
+            .in_set(SampleView),
+    );
+    add_render_systems(schedule);
+    add_gradient_systems(schedule);
+    schedule.add_systems(adam::adam_systems().in_set(Adam));
+    schedule.add_systems(densify::densify_systems().in_set(Densify));
+}
+
+/// Adds the stages that draw the current [`crate::resources::ViewSample`]: time warp,
+/// deformation and splatting.
+pub fn add_render_systems(schedule: &mut Schedule) {
+    use TrainSet::*;
+    schedule.configure_sets((TimeWarp, Deform, Splat).chain());
     schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
     schedule.add_systems(deform::deform.in_set(Deform));
     schedule.add_systems(splat::splat.in_set(Splat));
-    schedule.add_systems(loss::loss.in_set(Loss));
-    schedule.add_systems((backward::backward_splats, backward::backward_parameters).chain().in_set(Backward));
-    schedule.add_systems(adam::adam_systems().in_set(Adam));
-    schedule.add_systems(densify::densify_systems().in_set(Densify));
+}
+
+/// Adds the loss and backward stages (after splatting).
+fn add_gradient_systems(schedule: &mut Schedule) {
+    schedule.add_systems(loss::loss.in_set(TrainSet::Loss));
+    add_backward_systems(schedule);
+}
+
+/// Adds the backward stage, which reads the image gradient from
+/// [`crate::resources::LossImage`]: with [`add_render_systems`] and a loss of your own in
+/// [`TrainSet::Loss`], it differentiates any image loss.
+pub fn add_backward_systems(schedule: &mut Schedule) {
+    use TrainSet::*;
+    schedule.configure_sets((Splat, Loss, Backward).chain());
+    schedule.add_systems(
+        (backward::backward_splats, backward::backward_parameters)
+            .chain()
+            .in_set(Backward),
+    );
 }
 
 /// The schedule of one training iteration.
@@ -66,12 +101,22 @@ pub fn training_schedule() -> Schedule {
 /// The schedule that renders the current [`crate::resources::ViewSample`] without training:
 /// time warp, deformation and splatting.
 pub fn render_schedule() -> Schedule {
-    use TrainSet::*;
     let mut schedule = Schedule::new(RenderView);
     schedule.set_executor(SingleThreadedExecutor::new());
-    schedule.configure_sets((TimeWarp, Deform, Splat).chain());
-    schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
-    schedule.add_systems(deform::deform.in_set(Deform));
-    schedule.add_systems(splat::splat.in_set(Splat));
+    add_render_systems(&mut schedule);
+    schedule
+}
+
+/// Label of the schedule returned by [`gradient_schedule`].
+#[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct ComputeGradients;
+
+/// Renders the current [`crate::resources::ViewSample`] (which must be a dataset view), computes
+/// the loss and writes every [`crate::components::Grad`] without changing any parameter.
+pub fn gradient_schedule() -> Schedule {
+    let mut schedule = Schedule::new(ComputeGradients);
+    schedule.set_executor(SingleThreadedExecutor::new());
+    add_render_systems(&mut schedule);
+    add_gradient_systems(&mut schedule);
     schedule
 }

@@ -15,12 +15,19 @@ pub fn advance_iteration(settings: Res<Settings>, mut state: ResMut<TrainState>)
 }
 
 /// Samples (camera, frame) uniformly without replacement within an epoch.
-pub fn sample_view(views: Res<TrainingViews>, mut order: ResMut<ViewOrder>, mut rng: ResMut<Rng>, mut sample: ResMut<ViewSample>) {
+pub fn sample_view(
+    views: Res<TrainingViews>,
+    mut order: ResMut<ViewOrder>,
+    mut rng: ResMut<Rng>,
+    mut sample: ResMut<ViewSample>,
+) {
     let dataset = &views.0;
     if order.next >= order.order.len() {
         order.order.clear();
         for &camera in &dataset.train_cameras {
-            order.order.extend((0..dataset.frame_count).map(|frame| (camera, frame)));
+            order
+                .order
+                .extend((0..dataset.frame_count).map(|frame| (camera, frame)));
         }
         order.order.shuffle(&mut rng.0);
         order.next = 0;

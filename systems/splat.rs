@@ -23,15 +23,31 @@ pub fn splat(
         splat_slot.0 = slot as u32;
         buffers.deformed.push(*deformed);
     }
-    buffers.deformed.par_iter().map(|d| project_splat(d, &camera)).collect_into_vec(&mut buffers.splats);
+    buffers
+        .deformed
+        .par_iter()
+        .map(|d| project_splat(d, &camera))
+        .collect_into_vec(&mut buffers.splats);
     let (width, height) = (camera.width as usize, camera.height as usize);
-    buffers.rasterizer.forward(&buffers.splats, width, height, settings.train.background, &mut buffers.render);
+    buffers.rasterizer.forward(
+        &buffers.splats,
+        width,
+        height,
+        settings.train.background,
+        &mut buffers.render,
+    );
 }
 
 /// The splat of one deformed Gaussian; invisible when culled (behind the camera, off screen or
 /// with σ(t) below 1/255).
 pub fn project_splat(d: &Deformed, camera: &crate::data::Camera) -> Splat {
-    match project(Vec3::from_array(d.mean), d.rotation, Vec3::from_array(d.scale), d.opacity, camera) {
+    match project(
+        Vec3::from_array(d.mean),
+        d.rotation,
+        Vec3::from_array(d.scale),
+        d.opacity,
+        camera,
+    ) {
         Some(p) => Splat {
             mean2d: p.mean2d,
             conic: p.conic,

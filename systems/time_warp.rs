@@ -6,11 +6,18 @@ use crate::components::{Temporal, WarpedTime};
 use crate::resources::{Settings, ViewSample};
 
 /// Writes each Gaussian's raw and warped temporal offset at the sampled time.
-pub fn time_warp(settings: Res<Settings>, sample: Res<ViewSample>, mut gaussians: Query<(&Temporal, &mut WarpedTime)>) {
+pub fn time_warp(
+    settings: Res<Settings>,
+    sample: Res<ViewSample>,
+    mut gaussians: Query<(&Temporal, &mut WarpedTime)>,
+) {
     let warp = settings.warp;
     let t = sample.time;
     gaussians.par_iter_mut().for_each(|(temporal, mut warped)| {
         let dt = t - temporal.center;
-        *warped = WarpedTime { dt, dtw: warp.apply(dt) };
+        *warped = WarpedTime {
+            dt,
+            dtw: warp.apply(dt),
+        };
     });
 }

@@ -40,7 +40,14 @@ fn fixed_view_loss(trainer: &mut Trainer, dataset: &Dataset) -> f32 {
     let camera = dataset.train_cameras[0];
     let out = trainer.render(&dataset.cameras[camera], dataset.frame_time(2));
     let mut d = Vec::new();
-    training_loss(&mut LossScratch::default(), &out.image, &dataset.images[camera][2], 0.2, &mut d).total
+    training_loss(
+        &mut LossScratch::default(),
+        &out.image,
+        &dataset.images[camera][2],
+        0.2,
+        &mut d,
+    )
+    .total
 }
 
 /// Sixty iterations lower the loss of a fixed training view by at least 20 %.
@@ -70,16 +77,43 @@ struct Snapshot {
 #[derive(Resource, Default)]
 struct Before(HashMap<Entity, Snapshot>);
 
-fn snapshot(mut before: ResMut<Before>, q: Query<(Entity, &Position, &Temporal, &Scale, &Opacity, &Adam<Position>)>) {
+fn snapshot(
+    mut before: ResMut<Before>,
+    q: Query<(
+        Entity,
+        &Position,
+        &Temporal,
+        &Scale,
+        &Opacity,
+        &Adam<Position>,
+    )>,
+) {
     before.0 = q
         .iter()
-        .map(|(e, p, t, s, o, a)| (e, Snapshot { position: *p, temporal: *t, scale: *s, opacity: *o, adam_position: *a }))
+        .map(|(e, p, t, s, o, a)| {
+            (
+                e,
+                Snapshot {
+                    position: *p,
+                    temporal: *t,
+                    scale: *s,
+                    opacity: *o,
+                    adam_position: *a,
+                },
+            )
+        })
         .collect();
 }
 
 fn adam_is_zero<P: Param>(world: &mut World, e: Entity) -> bool {
-    let adam = world.get::<Adam<P>>(e).expect("every Gaussian has Adam state for every group");
-    adam.m.values().iter().chain(adam.v.values()).all(|v| *v == 0.0)
+    let adam = world
+        .get::<Adam<P>>(e)
+        .expect("every Gaussian has Adam state for every group");
+    adam.m
+        .values()
+        .iter()
+        .chain(adam.v.values())
+        .all(|v| *v == 0.0)
 }
 
 fn all_adam_zero(world: &mut World, e: Entity) -> bool {
@@ -107,10 +141,17 @@ fn densification_keeps_components_and_adam_state_consistent() {
     insert_resources(&mut world, &config, dataset);
     spawn_initial_gaussians(&mut world, &config);
     // Median initial scale as the clone/split boundary, so both happen.
-    let mut scales: Vec<f32> = world.query::<&Scale>().iter(&world).map(|s| s.d0[0].exp()).collect();
+    let mut scales: Vec<f32> = world
+        .query::<&Scale>()
+        .iter(&world)
+        .map(|s| s.d0[0].exp())
+        .collect();
     scales.sort_by(f32::total_cmp);
     let extent = world.resource::<tadgs::resources::Settings>().extent;
-    world.resource_mut::<tadgs::resources::Settings>().densify.percent_dense = scales[scales.len() / 2] / extent;
+    world
+        .resource_mut::<tadgs::resources::Settings>()
+        .densify
+        .percent_dense = scales[scales.len() / 2] / extent;
 
     world.init_resource::<Before>();
     let mut schedule = training_schedule();
@@ -120,20 +161,49 @@ fn densification_keeps_components_and_adam_state_consistent() {
     }
     let report = world.resource::<TrainState>().last_densify;
     assert_eq!(report.iteration, 10);
-    assert!(report.cloned > 0 && report.split > 0 && report.pruned > 0, "{report:?}");
+    assert!(
+        report.cloned > 0 && report.split > 0 && report.pruned > 0,
+        "{report:?}"
+    );
 
     let before = std::mem::take(&mut world.resource_mut::<Before>().0);
-    let entities: Vec<Entity> = world.query::<Entity>().iter(&world).collect();
-    assert_eq!(entities.len(), before.len() + report.cloned + report.split - report.pruned);
+    let entities: Vec<Entity> = world
+        .query_filtered::<Entity, With<Position>>()
+        .iter(&world)
+        .collect();
+    assert_eq!(
+        entities.len(),
+        before.len() + report.cloned + report.split - report.pruned
+    );
     let complete = world
         .query::<(
-            (&Position, &Fourier, &Temporal, &Opacity, &Rotation, &Scale, &Color),
-            (&Grad<Position>, &Grad<Fourier>, &Grad<Temporal>, &Grad<Opacity>, &Grad<Rotation>, &Grad<Scale>, &Grad<Color>),
+            (
+                &Position,
+                &Fourier,
+                &Temporal,
+                &Opacity,
+                &Rotation,
+                &Scale,
+                &Color,
+            ),
+            (
+                &Grad<Position>,
+                &Grad<Fourier>,
+                &Grad<Temporal>,
+                &Grad<Opacity>,
+                &Grad<Rotation>,
+                &Grad<Scale>,
+                &Grad<Color>,
+            ),
             (&GradAccum, &WarpedTime, &Deformed, &SplatSlot),
         )>()
         .iter(&world)
         .count();
-    assert_eq!(complete, entities.len(), "every Gaussian has every component");
+    assert_eq!(
+        complete,
+        entities.len(),
+        "every Gaussian has every component"
+    );
 
     let mut new = 0;
     let mut split_parents = 0;
@@ -141,23 +211,49 @@ fn densification_keeps_components_and_adam_state_consistent() {
     for &e in &entities {
         let temporal = *world.get::<Temporal>(e).unwrap();
         let scale = *world.get::<Scale>(e).unwrap();
-        assert_eq!(*world.get::<GradAccum>(e).unwrap(), GradAccum::default(), "statistics reset");
+        assert_eq!(
+            *world.get::<GradAccum>(e).unwrap(),
+            GradAccum::default(),
+            "statistics reset"
+        );
         match before.get(&e) {
             None => {
                 new += 1;
-                assert!(all_adam_zero(&mut world, e), "new Gaussians start with zero moments");
-                let parent = before.values().find(|s| s.temporal == temporal && (s.scale == scale || s.scale.d0[0] - scale.d0[0] > 0.46));
-                assert!(parent.is_some(), "a child inherits its parent's temporal centre and fields");
+                assert!(
+                    all_adam_zero(&mut world, e),
+                    "new Gaussians start with zero moments"
+                );
+                let parent = before.values().find(|s| {
+                    s.temporal == temporal
+                        && (s.scale == scale || s.scale.d0[0] - scale.d0[0] > 0.46)
+                });
+                assert!(
+                    parent.is_some(),
+                    "a child inherits its parent's temporal centre and fields"
+                );
             }
             Some(old) => {
-                assert!(tadgs::model::deform::sigmoid(old.opacity.logit) >= 0.1, "survivors are above the prune threshold");
+                assert!(
+                    tadgs::model::deform::sigmoid(old.opacity.logit) >= 0.1,
+                    "survivors are above the prune threshold"
+                );
                 assert_eq!(old.temporal, temporal);
                 if old.scale != scale {
                     split_parents += 1;
-                    assert!((old.scale.d0[0] - scale.d0[0] - 1.6f32.ln()).abs() < 1e-5, "split divides scales by 1.6");
-                    assert!(all_adam_zero(&mut world, e), "split Gaussians restart their moments");
+                    assert!(
+                        (old.scale.d0[0] - scale.d0[0] - 1.6f32.ln()).abs() < 1e-5,
+                        "split divides scales by 1.6"
+                    );
+                    assert!(
+                        all_adam_zero(&mut world, e),
+                        "split Gaussians restart their moments"
+                    );
                 } else {
-                    assert_eq!(*world.get::<Adam<Position>>(e).unwrap(), old.adam_position, "others keep their moments");
+                    assert_eq!(
+                        *world.get::<Adam<Position>>(e).unwrap(),
+                        old.adam_position,
+                        "others keep their moments"
+                    );
                     kept_moments += !adam_is_zero::<Position>(&mut world, e) as usize;
                 }
             }

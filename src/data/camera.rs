@@ -60,7 +60,11 @@ impl Camera {
     /// Projects a world point to pixel coordinates (pixel centres at +0.5) and depth.
     pub fn project(&self, world: Vec3) -> (f32, f32, f32) {
         let p = self.world_to_camera.transform_point3(world);
-        (self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy, p.z)
+        (
+            self.fx * p.x / p.z + self.cx,
+            self.fy * p.y / p.z + self.cy,
+            p.z,
+        )
     }
 
     /// World-space direction of the ray through pixel coordinates (u, v), normalised.

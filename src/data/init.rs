@@ -47,17 +47,33 @@ pub fn in_view(cam: &Camera, point: Vec3) -> bool {
 /// `count` random points, uniform in the region seen by at least half of `cameras`, with
 /// random colours. The region is searched in a cube around the rig's focus point whose
 /// half-size is the mean camera distance (rejection sampling; gives up after 1000 tries per point).
-pub fn random_points_in_view(cameras: &[Camera], count: usize, rng: &mut impl Rng) -> Vec<InitPoint> {
+pub fn random_points_in_view(
+    cameras: &[Camera],
+    count: usize,
+    rng: &mut impl Rng,
+) -> Vec<InitPoint> {
     let focus = rig_focus(cameras);
-    let half = cameras.iter().map(|c| c.center().distance(focus)).sum::<f32>() / cameras.len().max(1) as f32;
+    let half = cameras
+        .iter()
+        .map(|c| c.center().distance(focus))
+        .sum::<f32>()
+        / cameras.len().max(1) as f32;
     let needed = cameras.len().div_ceil(2);
     let mut points = Vec::with_capacity(count);
     let mut tries = 0usize;
     while points.len() < count && tries < count * 1000 {
         tries += 1;
-        let p = focus + Vec3::new(rng.random_range(-half..half), rng.random_range(-half..half), rng.random_range(-half..half));
+        let p = focus
+            + Vec3::new(
+                rng.random_range(-half..half),
+                rng.random_range(-half..half),
+                rng.random_range(-half..half),
+            );
         if cameras.iter().filter(|c| in_view(c, p)).count() >= needed {
-            points.push(InitPoint { position: p, color: [rng.random(), rng.random(), rng.random()] });
+            points.push(InitPoint {
+                position: p,
+                color: [rng.random(), rng.random(), rng.random()],
+            });
         }
     }
     points
@@ -84,7 +100,13 @@ pub fn nearest_neighbour_scales(points: &[Vec3]) -> Vec<f32> {
                 }
             }
             let found: Vec<f32> = best.into_iter().filter(|d| d.is_finite()).collect();
-            if found.is_empty() { 0.01 } else { (found.iter().sum::<f32>() / found.len() as f32).sqrt().max(1e-7) }
+            if found.is_empty() {
+                0.01
+            } else {
+                (found.iter().sum::<f32>() / found.len() as f32)
+                    .sqrt()
+                    .max(1e-7)
+            }
         })
         .collect()
 }
@@ -111,7 +133,9 @@ mod tests {
 
     #[test]
     fn neighbour_scale_of_a_unit_grid_is_one() {
-        let pts: Vec<Vec3> = (0..27).map(|i| Vec3::new((i % 3) as f32, ((i / 3) % 3) as f32, (i / 9) as f32)).collect();
+        let pts: Vec<Vec3> = (0..27)
+            .map(|i| Vec3::new((i % 3) as f32, ((i / 3) % 3) as f32, (i / 9) as f32))
+            .collect();
         let s = nearest_neighbour_scales(&pts);
         assert!((s[13] - 1.0).abs() < 1e-6); // the centre point has 6 neighbours at distance 1
     }
@@ -121,7 +145,14 @@ mod tests {
         let cams: Vec<Camera> = (0..8)
             .map(|i| {
                 let a = i as f32 * std::f32::consts::TAU / 8.0;
-                Camera::look_at(Vec3::new(4.0 * a.cos(), 1.0, 4.0 * a.sin()), Vec3::ZERO, Vec3::Y, 64, 48, 1.0)
+                Camera::look_at(
+                    Vec3::new(4.0 * a.cos(), 1.0, 4.0 * a.sin()),
+                    Vec3::ZERO,
+                    Vec3::Y,
+                    64,
+                    48,
+                    1.0,
+                )
             })
             .collect();
         assert!(rig_focus(&cams).length() < 1e-3);

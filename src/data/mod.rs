@@ -26,6 +26,10 @@ pub struct Dataset {
 impl Dataset {
     /// Normalised time of a frame: `frame / (T − 1)` in [0, 1].
     pub fn frame_time(&self, frame: usize) -> f32 {
-        if self.frame_count <= 1 { 0.0 } else { frame as f32 / (self.frame_count - 1) as f32 }
+        if self.frame_count <= 1 {
+            0.0
+        } else {
+            frame as f32 / (self.frame_count - 1) as f32
+        }
     }
 }

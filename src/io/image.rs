@@ -14,17 +14,30 @@ pub struct Image {
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
     #[error("cannot read image {path}: {source}")]
-    Read { path: String, source: image::ImageError },
+    Read {
+        path: String,
+        source: image::ImageError,
+    },
     #[error("cannot write image {path}: {source}")]
-    Write { path: String, source: std::io::Error },
+    Write {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("cannot encode image {path}: {source}")]
-    Encode { path: String, source: image::ImageError },
+    Encode {
+        path: String,
+        source: image::ImageError,
+    },
 }
 
 impl Image {
     /// A `width × height` image filled with `color`.
     pub fn filled(width: usize, height: usize, color: [f32; 3]) -> Self {
-        Self { width, height, data: vec![color; width * height] }
+        Self {
+            width,
+            height,
+            data: vec![color; width * height],
+        }
     }
 
     /// Pixel at (x, y).
@@ -36,11 +49,18 @@ impl Image {
     /// Reads a PNG or JPEG file as RGB (alpha, if any, is dropped).
     pub fn load(path: &Path) -> Result<Self, ImageError> {
         let img = image::open(path)
-            .map_err(|source| ImageError::Read { path: path.display().to_string(), source })?
+            .map_err(|source| ImageError::Read {
+                path: path.display().to_string(),
+                source,
+            })?
             .to_rgb32f();
         let (width, height) = (img.width() as usize, img.height() as usize);
         let data = img.pixels().map(|p| p.0).collect();
-        Ok(Self { width, height, data })
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
     }
 
     /// 8-bit sRGB-coded bytes (values are clamped to [0, 1] and rounded).
@@ -60,7 +80,13 @@ impl Image {
         let tmp = path.with_extension("png.tmp");
         self.to_rgb8()
             .save_with_format(&tmp, image::ImageFormat::Png)
-            .map_err(|source| ImageError::Encode { path: shown.clone(), source })?;
-        std::fs::rename(&tmp, path).map_err(|source| ImageError::Write { path: shown, source })
+            .map_err(|source| ImageError::Encode {
+                path: shown.clone(),
+                source,
+            })?;
+        std::fs::rename(&tmp, path).map_err(|source| ImageError::Write {
+            path: shown,
+            source,
+        })
     }
 }

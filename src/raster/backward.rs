@@ -4,40 +4,53 @@ use rayon::prelude::*;
 
 use super::binning::split_by_offsets;
 use super::forward::power;
-use super::{ALPHA_MAX, ALPHA_MIN, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS};
+use super::{
+    ALPHA_MAX, ALPHA_MIN, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS, exp_falloff,
+    pixels_in_box,
+};
 
 impl Rasterizer {
     /// Back-propagates `d_color` (dL/d(rendered colour), row-major, same size as the last
     /// forward) to `grads[s]` for every splat `s` of the last [`Rasterizer::forward`] call.
     ///
     /// `splats` must be the slice given to that forward call.
-    pub fn backward(&mut self, splats: &[Splat], d_color: &[[f32; 3]], width: usize, grads: &mut Vec<SplatGrad>) {
+    pub fn backward(
+        &mut self,
+        splats: &[Splat],
+        d_color: &[[f32; 3]],
+        width: usize,
+        grads: &mut Vec<SplatGrad>,
+    ) {
         let tiles_x = self.tiles_x();
         let height = d_color.len() / width.max(1);
         let background = self.background;
         self.entry_grads.clear();
-        self.entry_grads.resize(self.bins.entry_count(), SplatGrad::default());
+        self.entry_grads
+            .resize(self.bins.entry_count(), SplatGrad::default());
 
         let bins = &self.bins;
         let final_t = &self.final_transmittance;
         let contributors = &self.contributors;
         let mut per_tile = split_by_offsets(&mut self.entry_grads, &bins.tile_offsets);
-        per_tile.par_iter_mut().enumerate().for_each(|(tile, entry_grads)| {
-            let entries = &bins.sorted_splats[bins.tile_range(tile)];
-            let pixels = tile * TILE_PIXELS..(tile + 1) * TILE_PIXELS;
-            let origin = ((tile % tiles_x) * TILE, (tile / tiles_x) * TILE);
-            backward_tile(
-                entries,
-                splats,
-                origin,
-                (width, height),
-                background,
-                d_color,
-                &final_t[pixels.clone()],
-                &contributors[pixels],
-                entry_grads,
-            );
-        });
+        per_tile
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(tile, entry_grads)| {
+                let entries = &bins.sorted_splats[bins.tile_range(tile)];
+                let pixels = tile * TILE_PIXELS..(tile + 1) * TILE_PIXELS;
+                let origin = ((tile % tiles_x) * TILE, (tile / tiles_x) * TILE);
+                backward_tile(
+                    entries,
+                    splats,
+                    origin,
+                    (width, height),
+                    background,
+                    d_color,
+                    &final_t[pixels.clone()],
+                    &contributors[pixels],
+                    entry_grads,
+                );
+            });
         drop(per_tile);
 
         // Reduce the per-(tile, splat) partial sums to one gradient per splat.
@@ -86,17 +99,20 @@ fn backward_tile(
     for k in (0..max_contributor).rev() {
         let sp = &splats[entries[k] as usize];
         let mut g = SplatGrad::default();
-        for p in 0..TILE_PIXELS {
+        let (x0, x1, y0, y1) = pixels_in_box(sp, origin);
+        let min_power = (ALPHA_MIN / sp.opacity).ln() - 1e-4;
+        for p in (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * TILE + x)) {
             if k >= contributors[p] as usize {
                 continue;
             }
             let dx = (origin.0 + p % TILE) as f32 + 0.5 - sp.mean2d.x;
             let dy = (origin.1 + p / TILE) as f32 + 0.5 - sp.mean2d.y;
             let pw = power(&sp.conic, dx, dy);
-            if pw > 0.0 {
+            // Below this exponent alpha < 1/255 (and a positive one is numerical noise).
+            if pw > 0.0 || pw < min_power {
                 continue;
             }
-            let gauss = pw.exp();
+            let gauss = exp_falloff(pw);
             let raw_alpha = sp.opacity * gauss;
             let alpha = raw_alpha.min(ALPHA_MAX);
             if alpha < ALPHA_MIN {
@@ -108,7 +124,8 @@ fn backward_tile(
             let mut d_alpha = 0.0;
             for c in 0..3 {
                 // Colour of everything behind this splat, as seen through it.
-                accum[p][c] = last_alpha[p] * last_color[p][c] + (1.0 - last_alpha[p]) * accum[p][c];
+                accum[p][c] =
+                    last_alpha[p] * last_color[p][c] + (1.0 - last_alpha[p]) * accum[p][c];
                 last_color[p][c] = sp.color[c];
                 d_alpha += (sp.color[c] - accum[p][c]) * d_pixel[p][c];
                 g.color[c] += alpha * t * d_pixel[p][c];

@@ -47,7 +47,10 @@ impl TileBins {
         let tile_count = self.tiles_x * self.tiles_y;
         let (tiles_x, tiles_y) = (self.tiles_x as f32, self.tiles_y as f32);
 
-        splats.par_iter().map(|s| tile_rect(s, tiles_x, tiles_y)).collect_into_vec(&mut self.rects);
+        splats
+            .par_iter()
+            .map(|s| tile_rect(s, tiles_x, tiles_y))
+            .collect_into_vec(&mut self.rects);
 
         self.splat_offsets.clear();
         self.splat_offsets.reserve(splats.len() + 1);
@@ -94,7 +97,10 @@ impl TileBins {
         let mut tiles = split_by_offsets(&mut self.sorted_keys, &self.tile_offsets);
         tiles.par_iter_mut().for_each(|keys| keys.sort_unstable());
         drop(tiles);
-        self.sorted_splats.par_iter_mut().zip(self.sorted_keys.par_iter()).for_each(|(s, k)| *s = *k as u32);
+        self.sorted_splats
+            .par_iter_mut()
+            .zip(self.sorted_keys.par_iter())
+            .for_each(|(s, k)| *s = *k as u32);
         self.rebuild_positions();
     }
 
@@ -102,7 +108,8 @@ impl TileBins {
         // Entries of one splat appear in increasing tile order, one per tile; walking tiles in
         // order therefore visits each splat's entries in their unsorted order.
         self.tile_fill.clear();
-        self.tile_fill.extend_from_slice(&self.splat_offsets[..self.splat_offsets.len() - 1]);
+        self.tile_fill
+            .extend_from_slice(&self.splat_offsets[..self.splat_offsets.len() - 1]);
         for k in 0..self.sorted_splats.len() {
             let s = self.sorted_splats[k] as usize;
             self.sorted_position[self.tile_fill[s] as usize] = k as u32;

@@ -2,7 +2,10 @@
 
 use rayon::prelude::*;
 
-use super::{ALPHA_MAX, ALPHA_MIN, RenderOutput, Rasterizer, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, untile};
+use super::{
+    ALPHA_MAX, ALPHA_MIN, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN,
+    exp_falloff, pixels_in_box, untile,
+};
 
 /// Gaussian falloff exponent at offset (dx, dy) from the centre.
 #[inline(always)]
@@ -12,7 +15,14 @@ pub(super) fn power(conic: &[f32; 3], dx: f32, dy: f32) -> f32 {
 
 impl Rasterizer {
     /// Renders `splats` into a `width × height` image over `background`.
-    pub fn forward(&mut self, splats: &[Splat], width: usize, height: usize, background: [f32; 3], out: &mut RenderOutput) {
+    pub fn forward(
+        &mut self,
+        splats: &[Splat],
+        width: usize,
+        height: usize,
+        background: [f32; 3],
+        out: &mut RenderOutput,
+    ) {
         self.bins.build(splats, width, height);
         self.background = background;
         let tile_count = self.bins.tiles_x * self.bins.tiles_y;
@@ -31,13 +41,36 @@ impl Rasterizer {
             .for_each(|(tile, ((color, transmittance), contributors))| {
                 let entries = &bins.sorted_splats[bins.tile_range(tile)];
                 let origin = ((tile % tiles_x) * TILE, (tile / tiles_x) * TILE);
-                blend_tile(entries, splats, origin, (width, height), background, color, transmittance, contributors);
+                blend_tile(
+                    entries,
+                    splats,
+                    origin,
+                    (width, height),
+                    background,
+                    color,
+                    transmittance,
+                    contributors,
+                );
             });
 
         out.image.width = width;
         out.image.height = height;
-        untile(&self.tile_color, tiles_x, width, height, &mut out.image.data, [0.0; 3]);
-        untile(&self.final_transmittance, tiles_x, width, height, &mut out.alpha, 1.0);
+        untile(
+            &self.tile_color,
+            tiles_x,
+            width,
+            height,
+            &mut out.image.data,
+            [0.0; 3],
+        );
+        untile(
+            &self.final_transmittance,
+            tiles_x,
+            width,
+            height,
+            &mut out.alpha,
+            1.0,
+        );
         out.alpha.par_iter_mut().for_each(|a| *a = 1.0 - *a);
     }
 }
@@ -69,17 +102,20 @@ fn blend_tile(
             break;
         }
         let sp = &splats[s as usize];
-        for p in 0..TILE_PIXELS {
+        let (x0, x1, y0, y1) = pixels_in_box(sp, origin);
+        let min_power = (ALPHA_MIN / sp.opacity).ln() - 1e-4;
+        for p in (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * TILE + x)) {
             if !active[p] {
                 continue;
             }
             let dx = (origin.0 + p % TILE) as f32 + 0.5 - sp.mean2d.x;
             let dy = (origin.1 + p / TILE) as f32 + 0.5 - sp.mean2d.y;
             let pw = power(&sp.conic, dx, dy);
-            if pw > 0.0 {
+            // Below this exponent alpha < 1/255 (and a positive one is numerical noise).
+            if pw > 0.0 || pw < min_power {
                 continue;
             }
-            let alpha = (sp.opacity * pw.exp()).min(ALPHA_MAX);
+            let alpha = (sp.opacity * exp_falloff(pw)).min(ALPHA_MAX);
             if alpha < ALPHA_MIN {
                 continue;
             }

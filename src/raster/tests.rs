@@ -29,10 +29,20 @@ fn random_splats(rng: &mut ChaCha8Rng, n: usize) -> Vec<Splat> {
 }
 
 /// Loss = Σ weight·colour over the image, so dL/dcolour = weight.
-fn weighted_sum(raster: &mut Rasterizer, splats: &[Splat], weights: &[[f32; 3]], bg: [f32; 3]) -> f64 {
+fn weighted_sum(
+    raster: &mut Rasterizer,
+    splats: &[Splat],
+    weights: &[[f32; 3]],
+    bg: [f32; 3],
+) -> f64 {
     let mut out = RenderOutput::default();
     raster.forward(splats, W, H, bg, &mut out);
-    out.image.data.iter().zip(weights).map(|(c, w)| (0..3).map(|i| (c[i] * w[i]) as f64).sum::<f64>()).sum()
+    out.image
+        .data
+        .iter()
+        .zip(weights)
+        .map(|(c, w)| (0..3).map(|i| (c[i] * w[i]) as f64).sum::<f64>())
+        .sum()
 }
 
 #[test]
@@ -93,7 +103,9 @@ fn nearer_splat_occludes_farther_one() {
 fn backward_matches_finite_differences() {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let splats = random_splats(&mut rng, 6);
-    let weights: Vec<[f32; 3]> = (0..W * H).map(|_| [rng.random(), rng.random(), rng.random()]).collect();
+    let weights: Vec<[f32; 3]> = (0..W * H)
+        .map(|_| [rng.random(), rng.random(), rng.random()])
+        .collect();
     let bg = [0.2, 0.4, 0.6];
     let mut raster = Rasterizer::new();
     weighted_sum(&mut raster, &splats, &weights, bg);
@@ -115,14 +127,19 @@ fn backward_matches_finite_differences() {
             ("b", |s| &mut s.color[2], 1e-2),
         ];
         let g = grads[s];
-        let analytic = [g.mean2d.x, g.mean2d.y, g.conic[0], g.conic[1], g.conic[2], g.opacity, g.color[0], g.color[1], g.color[2]];
+        let analytic = [
+            g.mean2d.x, g.mean2d.y, g.conic[0], g.conic[1], g.conic[2], g.opacity, g.color[0],
+            g.color[1], g.color[2],
+        ];
         let scale = analytic.iter().fold(0f32, |m, v| m.max(v.abs()));
         for (i, (name, field, h)) in fields.iter().enumerate() {
             let mut plus = splats.clone();
             *field(&mut plus[s]) += h;
             let mut minus = splats.clone();
             *field(&mut minus[s]) -= h;
-            let fd = (weighted_sum(&mut raster, &plus, &weights, bg) - weighted_sum(&mut raster, &minus, &weights, bg)) / (2.0 * *h as f64);
+            let fd = (weighted_sum(&mut raster, &plus, &weights, bg)
+                - weighted_sum(&mut raster, &minus, &weights, bg))
+                / (2.0 * *h as f64);
             let a = analytic[i] as f64;
             let err = (a - fd).abs();
             let tol = 2e-3 * a.abs().max(fd.abs()) + 1e-3 * scale as f64;
@@ -131,4 +148,20 @@ fn backward_matches_finite_differences() {
         }
     }
     assert_eq!(checked, 6 * 9);
+}
+
+/// The fast falloff exponential matches `f32::exp` to 2e-6 relative over the range that matters (the limit is
+/// the f32 rounding of x·log2(e), ≈ 1e-6 at x = −20)
+/// (down to e^-20, far below the 1/255 alpha cut-off).
+#[test]
+fn exp_falloff_matches_exp() {
+    let mut worst = 0f64;
+    for i in 0..=200_000 {
+        let x = -20.0 * i as f32 / 200_000.0;
+        let exact = (x as f64).exp();
+        worst = worst.max(((exp_falloff(x) as f64) - exact).abs() / exact);
+    }
+    assert!(worst < 2e-6, "worst relative error {worst:e}");
+    assert_eq!(exp_falloff(0.0), 1.0);
+    assert!(exp_falloff(-200.0) < 1e-37);
 }

@@ -1,5 +1,1015 @@
-//! Scene loading.
+//! Loading, validating and overriding scene files.
+//!
+//! Scene files are RON documents deserialised into [`SceneConfig`]. Every failure is
+//! reported with the file it came from and, wherever the source text allows, the line
+//! (and column) of the offending text:
+//!
+//! * syntax errors, unknown fields, missing fields and wrong types come from the RON
+//!   parser with its position ([`SceneError::Syntax`]);
+//! * values that parse but are out of range are found by [`validate`] and located in
+//!   the source text by a small structural scan of the RON document
+//!   ([`SceneError::Invalid`]).
+//!
+//! Two RON extensions are accepted without a `#![enable(...)]` attribute:
+//! `implicit_some` (write `vad_min_opacity: 0.1` instead of `Some(0.1)`; the explicit
+//! form still works) and, as a fallback when the canonical form fails,
+//! `unwrap_variant_newtypes` (write `data: Synthetic(width: 64, ...)` instead of the
+//! canonical `Synthetic((width: 64, ...))`). RON applies the latter to every newtype
+//! variant in the file, so a file must use one style throughout (`Solid(1.0, 0.0, 0.0)`
+//! with the unwrapped style, `Solid((1.0, 0.0, 0.0))` with the canonical one).
+//!
+//! Command-line overrides such as `train.iterations=3000` or `model.tow.rho=0.7` are
+//! applied by [`set_override`] / [`apply_overrides`]: the configuration is written out as
+//! RON, the value at the dotted path is replaced by the override's RON text and the
+//! result is parsed back with the real types, so every field — nested structs, enums,
+//! options, arrays — is reachable without per-field code.
+
+use std::path::Path;
+
+use ron::extensions::Extensions;
+
+use super::types::{DataSource, SceneConfig, TatForm};
+
+/// Everything that can go wrong while loading a scene file or applying an override.
 #[derive(Debug, thiserror::Error)]
-pub enum SceneError {}
-pub fn load_scene() {}
-pub fn parse_scene() {}
+pub enum SceneError {
+    /// The file could not be read.
+    #[error("cannot read scene file {path}: {source}")]
+    Io {
+        /// The path as given.
+        path: String,
+        /// The underlying I/O error.
+        source: std::io::Error,
+    },
+    /// The text is not a valid scene: RON syntax, unknown or missing field, wrong type.
+    #[error("{path}:{line}:{column}: {message}")]
+    Syntax {
+        /// The path as given.
+        path: String,
+        /// 1-based line of the error.
+        line: usize,
+        /// 1-based column (in characters) of the error.
+        column: usize,
+        /// The parser's description of the problem.
+        message: String,
+    },
+    /// The scene parsed but a value is out of range (found by [`validate`]).
+    #[error("{path}{}: invalid value for `{field}`: {message}", line_suffix(.line))]
+    Invalid {
+        /// The path as given.
+        path: String,
+        /// 1-based line of the field in the file; when the field itself is absent (its
+        /// default is used) the line of its closest enclosing section that is present.
+        /// `None` when neither appears in the text.
+        line: Option<usize>,
+        /// Dotted field path, e.g. `densify.grad_threshold`.
+        field: String,
+        /// What is wrong with the value.
+        message: String,
+    },
+    /// A command-line override could not be applied: unknown key, malformed value, a
+    /// value of the wrong type, or a value that fails validation.
+    #[error("invalid override `{key}`: {message}")]
+    Override {
+        /// The dotted key as given, e.g. `model.tow.rho`.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+fn line_suffix(line: &Option<usize>) -> String {
+    match line {
+        Some(line) => format!(":{line}"),
+        None => String::new(),
+    }
+}
+
+impl SceneError {
+    /// The 1-based line the error points at, if it has one.
+    pub fn line(&self) -> Option<usize> {
+        match self {
+            SceneError::Syntax { line, .. } => Some(*line),
+            SceneError::Invalid { line, .. } => *line,
+            SceneError::Io { .. } | SceneError::Override { .. } => None,
+        }
+    }
+}
+
+/// Reads, parses and validates the scene file at `path`.
+///
+/// Errors name the path as given.
+pub fn load_scene(path: &Path) -> Result<SceneConfig, SceneError> {
+    let shown = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+        path: shown.clone(),
+        source,
+    })?;
+    parse_scene(&text, &shown)
+}
+
+/// Parses and validates a scene from RON text; `path` is only used in error messages.
+pub fn parse_scene(text: &str, path: &str) -> Result<SceneConfig, SceneError> {
+    let config = deserialize(text).map_err(|e| {
+        let (line, column) = skip_blanks(text, e.span.start.line, e.span.start.col);
+        SceneError::Syntax {
+            path: path.to_string(),
+            line,
+            column,
+            message: e.code.to_string(),
+        }
+    })?;
+    validate(&config).map_err(|(field, message)| SceneError::Invalid {
+        path: path.to_string(),
+        line: locate_field(text, &lookup_path(&field, &message)),
+        field,
+        message,
+    })?;
+    Ok(config)
+}
+
+/// The parser reports some errors at the blank before the offending token; move such a
+/// position onto the token when it is on the same line.
+fn skip_blanks(text: &str, line: usize, column: usize) -> (usize, usize) {
+    let Some(line_text) = text.lines().nth(line.wrapping_sub(1)) else {
+        return (line, column);
+    };
+    let rest = line_text.chars().skip(column.saturating_sub(1));
+    let blanks = rest.clone().take_while(|c| *c == ' ' || *c == '\t').count();
+    if rest.clone().nth(blanks).is_some() {
+        (line, column + blanks)
+    } else {
+        (line, column)
+    }
+}
+
+fn ron_options(extra: Extensions) -> ron::Options {
+    ron::Options::default().with_default_extension(Extensions::IMPLICIT_SOME | extra)
+}
+
+/// Deserialises with the canonical newtype-variant form first and the unwrapped form as
+/// a fallback; when both fail, the error that got further into the text is the
+/// informative one.
+fn deserialize(text: &str) -> Result<SceneConfig, ron::error::SpannedError> {
+    match ron_options(Extensions::empty()).from_str(text) {
+        Ok(config) => Ok(config),
+        Err(first) => match ron_options(Extensions::UNWRAP_VARIANT_NEWTYPES).from_str(text) {
+            Ok(config) => Ok(config),
+            Err(second) if second.span.start > first.span.start => Err(second),
+            Err(_) => Err(first),
+        },
+    }
+}
+
+/// The 1-based line of a dotted field path (e.g. `model.tow.rho`, or with list indices
+/// such as `data.objects[1].path[0].time`) in RON source text, or of its closest
+/// enclosing field or element present in the text. `None` if nothing on the path appears
+/// or the text cannot be scanned.
+pub fn locate_field(text: &str, field: &str) -> Option<usize> {
+    let root = outline::parse_document(text)?;
+    let mut node = &root;
+    let mut found = None;
+    'walk: for segment in field.split('.') {
+        let mut parts = segment.split('[');
+        let name = parts.next().unwrap_or(segment);
+        match node.field(name) {
+            Some(f) => {
+                found = Some(f.name_start);
+                node = &f.value;
+            }
+            None => break,
+        }
+        for index in parts {
+            let Some(item) = index
+                .trim_end_matches(']')
+                .parse()
+                .ok()
+                .and_then(|i| node.item(i))
+            else {
+                break 'walk;
+            };
+            found = Some(item.start);
+            node = item;
+        }
+    }
+    found.map(|offset| outline::line_col(text, offset).0)
+}
+
+/// Where to look for an invalid field in the source: the data source's messages start
+/// with the path of the offending field inside it (`cameras.radius must be ...`), which
+/// is more precise than `data` alone.
+fn lookup_path(field: &str, message: &str) -> String {
+    let head = message.split([' ', ',', ':']).next().unwrap_or("");
+    let path_like = !head.is_empty()
+        && head
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '.' | '[' | ']'));
+    if field == "data" && path_like {
+        format!("data.{head}")
+    } else {
+        field.to_string()
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Validation
+// ---------------------------------------------------------------------------------------
+
+type Check = Result<(), (String, String)>;
+
+fn fail(field: &str, message: impl Into<String>) -> Check {
+    Err((field.to_string(), message.into()))
+}
+
+fn finite(field: &str, v: f32) -> Check {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        fail(field, format!("{v} is not a finite number"))
+    }
+}
+
+/// `v` finite and within `lo..hi`, each bound inclusive or exclusive as flagged.
+fn in_range(field: &str, v: f32, lo: f32, lo_incl: bool, hi: f32, hi_incl: bool) -> Check {
+    finite(field, v)?;
+    let above = if lo_incl { v >= lo } else { v > lo };
+    let below = if hi_incl { v <= hi } else { v < hi };
+    if above && below {
+        Ok(())
+    } else {
+        let open = if lo_incl { '[' } else { '(' };
+        let close = if hi_incl { ']' } else { ')' };
+        fail(field, format!("{v} is outside {open}{lo}, {hi}{close}"))
+    }
+}
+
+fn at_least(field: &str, v: f32, lo: f32) -> Check {
+    finite(field, v)?;
+    if v >= lo {
+        Ok(())
+    } else {
+        fail(field, format!("{v} must be at least {lo}"))
+    }
+}
+
+fn positive(field: &str, v: f32) -> Check {
+    finite(field, v)?;
+    if v > 0.0 {
+        Ok(())
+    } else {
+        fail(field, format!("{v} must be greater than 0"))
+    }
+}
+
+fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
+    if v != T::default() {
+        Ok(())
+    } else {
+        fail(field, "must be greater than 0")
+    }
+}
+
+/// Checks every range constraint of a scene; on failure returns the dotted path of the
+/// first offending field (e.g. `densify.grad_threshold`) and a message.
+///
+/// Checked: `train.iterations > 0`; `lambda_dssim` in [0, 1]; every learning rate finite
+/// and ≥ 0 (`sh_rest_divisor` > 0) with `position_final ≤ position`; background channels
+/// in [0, 1]; `model.sh_degree ≤ 3`; `tow.window_frames > 0`, `tow.rho` in (0, 1);
+/// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
+/// `grad_threshold > 0`; `percent_dense > 0`; `interval > 0`; `from_iter ≤ until_iter`;
+/// `prune_opacity` in [0, 1); `vad_min_opacity` in [0, 1) if set; `max_gaussians ≥ 1`;
+/// `init.anchor_spacing ≥ 1`, `points_per_anchor ≥ 1`, `opacity` in (0, 1),
+/// `lifespan_half_frames > 0`; and the data source's own check (reported under `data`).
+/// Non-finite floats are rejected wherever a float is checked.
+pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
+    // train
+    let t = &config.train;
+    nonzero("train.iterations", t.iterations)?;
+    in_range("train.lambda_dssim", t.lambda_dssim, 0.0, true, 1.0, true)?;
+    for (i, &c) in t.background.iter().enumerate() {
+        if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
+            return fail(
+                "train.background",
+                format!("channel {i} is {c}, outside [0, 1]"),
+            );
+        }
+    }
+    let lr = &t.lr;
+    let rates = [
+        ("position", lr.position),
+        ("position_final", lr.position_final),
+        ("fourier_cos_sin", lr.fourier_cos_sin),
+        ("fourier_phase", lr.fourier_phase),
+        ("temporal_scale", lr.temporal_scale),
+        ("opacity", lr.opacity),
+        ("rotation", lr.rotation),
+        ("rotation_velocity", lr.rotation_velocity),
+        ("scale", lr.scale),
+        ("scale_velocity", lr.scale_velocity),
+        ("sh_dc", lr.sh_dc),
+    ];
+    for (name, v) in rates {
+        at_least(&format!("train.lr.{name}"), v, 0.0)?;
+    }
+    positive("train.lr.sh_rest_divisor", lr.sh_rest_divisor)?;
+    if lr.position_final > lr.position {
+        return fail(
+            "train.lr.position_final",
+            format!(
+                "{} is larger than train.lr.position ({})",
+                lr.position_final, lr.position
+            ),
+        );
+    }
+
+    // model
+    let m = &config.model;
+    if m.sh_degree > 3 {
+        return fail("model.sh_degree", format!("{} is above 3", m.sh_degree));
+    }
+    positive("model.tow.window_frames", m.tow.window_frames)?;
+    in_range("model.tow.rho", m.tow.rho, 0.0, false, 1.0, false)?;
+
+    // densify
+    let d = &config.densify;
+    match d.tat_form {
+        TatForm::Paper { beta, alpha } => {
+            at_least("densify.tat_form.beta", beta, 0.0)?;
+            positive("densify.tat_form.alpha", alpha)?;
+        }
+        TatForm::Implementation { beta, alpha } => {
+            in_range("densify.tat_form.beta", beta, 0.0, true, 1.0, true)?;
+            positive("densify.tat_form.alpha", alpha)?;
+        }
+    }
+    positive("densify.grad_threshold", d.grad_threshold)?;
+    positive("densify.percent_dense", d.percent_dense)?;
+    nonzero("densify.interval", d.interval)?;
+    if d.from_iter > d.until_iter {
+        return fail(
+            "densify.from_iter",
+            format!(
+                "{} is after densify.until_iter ({})",
+                d.from_iter, d.until_iter
+            ),
+        );
+    }
+    in_range(
+        "densify.prune_opacity",
+        d.prune_opacity,
+        0.0,
+        true,
+        1.0,
+        false,
+    )?;
+    if let Some(v) = d.vad_min_opacity {
+        in_range("densify.vad_min_opacity", v, 0.0, true, 1.0, false)?;
+    }
+    nonzero("densify.max_gaussians", d.max_gaussians)?;
+
+    // init
+    let i = &config.init;
+    nonzero("init.anchor_spacing", i.anchor_spacing)?;
+    nonzero("init.points_per_anchor", i.points_per_anchor)?;
+    in_range("init.opacity", i.opacity, 0.0, false, 1.0, false)?;
+    positive("init.lifespan_half_frames", i.lifespan_half_frames)?;
+
+    // data
+    match &config.data {
+        DataSource::Synthetic(scene) => validate_synthetic(scene)?,
+    }
+    Ok(())
+}
+
+fn validate_synthetic(scene: &crate::data::synthetic::SyntheticScene) -> Check {
+    scene
+        .validate()
+        .map_err(|message| ("data".to_string(), message))
+}
+
+// ---------------------------------------------------------------------------------------
+// Overrides
+// ---------------------------------------------------------------------------------------
+
+/// Sets the field at a dotted `key` (e.g. `train.iterations`, `densify.vad`,
+/// `model.tow.rho`, `densify.tat_form`, `train.background.0`) to `value`, written as RON
+/// (`3000`, `false`, `0.7`, `Implementation(beta: 0.5, alpha: 2.0)`, `"runs/x"`), then
+/// validates the whole configuration.
+///
+/// String fields also accept an unquoted value (`output=runs/x`). Option fields accept
+/// the bare inner value. On any error `config` is left unchanged; the error names the
+/// key: an unknown key lists the fields available at that level, a value of the wrong
+/// type quotes the parser's complaint. Because every call validates, overrides whose
+/// intermediate state would be inconsistent (e.g. moving `densify.until_iter` below
+/// `densify.from_iter` before lowering the latter) should go through
+/// [`apply_overrides`], which validates once at the end.
+pub fn set_override(config: &mut SceneConfig, key: &str, value: &str) -> Result<(), SceneError> {
+    let updated = replaced(config, key, value)?;
+    check_overridden(&updated, &[key])?;
+    *config = updated;
+    Ok(())
+}
+
+/// Applies `key=value` overrides in order (see [`set_override`] for the syntax), then
+/// validates once. On any error `config` is left unchanged.
+pub fn apply_overrides<S: AsRef<str>>(
+    config: &mut SceneConfig,
+    overrides: &[S],
+) -> Result<(), SceneError> {
+    let mut updated = config.clone();
+    let mut keys = Vec::new();
+    for arg in overrides {
+        let arg = arg.as_ref();
+        let (key, value) = arg.split_once('=').ok_or_else(|| SceneError::Override {
+            key: arg.to_string(),
+            message: "expected `key=value`".to_string(),
+        })?;
+        updated = replaced(&updated, key.trim(), value)?;
+        keys.push(key.trim());
+    }
+    check_overridden(&updated, &keys)?;
+    *config = updated;
+    Ok(())
+}
+
+/// Validates an overridden configuration. A failure is attributed to the override whose
+/// key overlaps the failing field (the last such), else to all of `keys`.
+fn check_overridden(config: &SceneConfig, keys: &[&str]) -> Result<(), SceneError> {
+    validate(config).map_err(|(field, message)| {
+        let overlaps = |key: &&&str| {
+            let within = |outer: &str, inner: &str| {
+                inner == outer || inner.starts_with(&format!("{outer}."))
+            };
+            within(key, &field) || within(&field, key)
+        };
+        let key = match keys.iter().rev().find(overlaps) {
+            Some(key) => key.to_string(),
+            None => keys.join(", "),
+        };
+        SceneError::Override {
+            key,
+            message: format!("invalid value for `{field}`: {message}"),
+        }
+    })
+}
+
+/// `config` with the value at `key` replaced by the RON text `value` (type-checked by
+/// deserialisation, not validated).
+fn replaced(config: &SceneConfig, key: &str, value: &str) -> Result<SceneConfig, SceneError> {
+    let err = |message: String| SceneError::Override {
+        key: key.to_string(),
+        message,
+    };
+    if key.is_empty() || key.split('.').any(str::is_empty) {
+        return Err(err(
+            "the key must be a dotted field path such as `train.iterations`".into(),
+        ));
+    }
+    let text = ron::ser::to_string_pretty(config, ron::ser::PrettyConfig::default())
+        .map_err(|e| err(format!("cannot serialise the configuration: {e}")))?;
+    let root = outline::parse_document(&text)
+        .ok_or_else(|| err("cannot scan the serialised configuration".into()))?;
+
+    // Walk the dotted path.
+    let mut node = &root;
+    let mut walked = String::new();
+    for segment in key.split('.') {
+        let next = match segment.parse::<usize>() {
+            Ok(index) => node.item(index),
+            Err(_) => node.field(segment).map(|f| &f.value),
+        };
+        node = match next {
+            Some(next) => next,
+            None => {
+                let known = node.field_names();
+                let place = if walked.is_empty() {
+                    "the scene".to_string()
+                } else {
+                    format!("`{walked}`")
+                };
+                return Err(err(if known.is_empty() {
+                    format!("unknown key: {place} has no field `{segment}`")
+                } else {
+                    format!(
+                        "unknown key: {place} has no field `{segment}` (fields: {})",
+                        known.join(", ")
+                    )
+                }));
+            }
+        };
+        if !walked.is_empty() {
+            walked.push('.');
+        }
+        walked.push_str(segment);
+    }
+
+    // The replacement text: one well-formed RON value.
+    let value = value.trim();
+    let target_is_string = text[node.start..].starts_with('"');
+    let replacement =
+        if target_is_string && outline::parse_single(value).is_none_or(|v| !v.is_string(value)) {
+            quote(value)
+        } else if outline::parse_single(value).is_some() {
+            value.to_string()
+        } else {
+            return Err(err(format!("`{value}` is not a single RON value")));
+        };
+
+    let spliced = format!(
+        "{}{}{}",
+        &text[..node.start],
+        replacement,
+        &text[node.end..]
+    );
+    deserialize(&spliced).map_err(|e| err(format!("cannot use `{value}` here: {}", e.code)))
+}
+
+fn quote(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('"');
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            '\n' => out.push_str("\\n"),
+            '\t' => out.push_str("\\t"),
+            '\r' => out.push_str("\\r"),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+// ---------------------------------------------------------------------------------------
+// Outline: a structural scan of RON text that records where values and field names are.
+// ---------------------------------------------------------------------------------------
+
+mod outline {
+    //! A tolerant structural scanner for RON. It does not interpret values; it only finds
+    //! the byte spans of values and the names and positions of struct fields, which is
+    //! enough to locate a field's line and to splice a replacement value.
+
+    /// A value and its byte span in the source.
+    pub(super) struct Node {
+        pub start: usize,
+        pub end: usize,
+        pub kind: Kind,
+    }
+
+    /// The shape of a value.
+    pub(super) enum Kind {
+        /// Number, string, char, bool, identifier (unit variant, `None`), ...
+        Leaf,
+        /// A struct-like body: `(a: 1, b: 2)` or `Name(a: 1)`.
+        Fields(Vec<Field>),
+        /// A tuple, list, newtype or map body: `(1, 2)`, `[1, 2]`, `Some(x)`, `{k: v}`.
+        Items(Vec<Node>),
+    }
+
+    /// One `name: value` entry of a struct-like body.
+    pub(super) struct Field {
+        pub name: String,
+        pub name_start: usize,
+        pub value: Node,
+    }
+
+    impl Node {
+        /// The named field of this value, looking through newtype wrappers such as
+        /// `Synthetic((...))` or `Some((...))`.
+        pub fn field(&self, name: &str) -> Option<&Field> {
+            match &self.unwrapped().kind {
+                Kind::Fields(fields) => fields.iter().find(|f| f.name == name),
+                _ => None,
+            }
+        }
+
+        /// The `index`-th element of a tuple or list.
+        pub fn item(&self, index: usize) -> Option<&Node> {
+            match &self.kind {
+                Kind::Items(items) => items.get(index),
+                _ => None,
+            }
+        }
+
+        /// Names of the fields reachable with [`Node::field`].
+        pub fn field_names(&self) -> Vec<String> {
+            match &self.unwrapped().kind {
+                Kind::Fields(fields) => fields.iter().map(|f| f.name.clone()).collect(),
+                _ => Vec::new(),
+            }
+        }
+
+        /// Whether this node is a string literal in `src`.
+        pub fn is_string(&self, src: &str) -> bool {
+            let s = &src[self.start..self.end];
+            s.starts_with('"') || s.starts_with("r\"") || s.starts_with("r#")
+        }
+
+        fn unwrapped(&self) -> &Node {
+            let mut node = self;
+            while let Kind::Items(items) = &node.kind {
+                if items.len() != 1 {
+                    break;
+                }
+                node = &items[0];
+            }
+            node
+        }
+    }
+
+    /// 1-based line and column (in characters) of a byte offset.
+    pub(super) fn line_col(src: &str, offset: usize) -> (usize, usize) {
+        let before = &src[..offset];
+        let line = before.matches('\n').count() + 1;
+        let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+        (line, before[line_start..].chars().count() + 1)
+    }
+
+    /// Scans a whole document: inner attributes (`#![enable(...)]`), one value, then
+    /// only whitespace and comments.
+    pub(super) fn parse_document(src: &str) -> Option<Node> {
+        let mut p = Scanner {
+            s: src.as_bytes(),
+            i: 0,
+        };
+        loop {
+            p.ws();
+            if p.s[p.i..].starts_with(b"#![") {
+                p.i += 2;
+                p.skip_balanced()?;
+            } else {
+                break;
+            }
+        }
+        let node = p.value(0)?;
+        p.ws();
+        (p.i == p.s.len()).then_some(node)
+    }
+
+    /// Scans text that must be exactly one value (surrounding whitespace allowed).
+    pub(super) fn parse_single(src: &str) -> Option<Node> {
+        let mut p = Scanner {
+            s: src.as_bytes(),
+            i: 0,
+        };
+        let node = p.value(0)?;
+        p.ws();
+        (p.i == p.s.len()).then_some(node)
+    }
+
+    const MAX_DEPTH: usize = 128;
+
+    struct Scanner<'a> {
+        s: &'a [u8],
+        i: usize,
+    }
+
+    fn is_ident_start(b: u8) -> bool {
+        b.is_ascii_alphabetic() || b == b'_' || b >= 0x80
+    }
+
+    fn is_ident_char(b: u8) -> bool {
+        b.is_ascii_alphanumeric() || b == b'_' || b >= 0x80
+    }
+
+    impl Scanner<'_> {
+        fn peek(&self) -> Option<u8> {
+            self.s.get(self.i).copied()
+        }
+
+        fn peek_at(&self, ahead: usize) -> Option<u8> {
+            self.s.get(self.i + ahead).copied()
+        }
+
+        /// Skips whitespace, line comments and (nested) block comments.
+        fn ws(&mut self) {
+            loop {
+                match (self.peek(), self.peek_at(1)) {
+                    (Some(b), _) if b.is_ascii_whitespace() => self.i += 1,
+                    (Some(b'/'), Some(b'/')) => {
+                        while let Some(b) = self.peek() {
+                            self.i += 1;
+                            if b == b'\n' {
+                                break;
+                            }
+                        }
+                    }
+                    (Some(b'/'), Some(b'*')) => {
+                        self.i += 2;
+                        let mut depth = 1;
+                        while depth > 0 {
+                            match (self.peek(), self.peek_at(1)) {
+                                (None, _) => return,
+                                (Some(b'/'), Some(b'*')) => {
+                                    depth += 1;
+                                    self.i += 2;
+                                }
+                                (Some(b'*'), Some(b'/')) => {
+                                    depth -= 1;
+                                    self.i += 2;
+                                }
+                                _ => self.i += 1,
+                            }
+                        }
+                    }
+                    _ => return,
+                }
+            }
+        }
+
+        /// Skips a bracketed group starting at `[`, `(` or `{`, honouring strings.
+        fn skip_balanced(&mut self) -> Option<()> {
+            let mut depth = 0usize;
+            loop {
+                self.ws();
+                match self.peek()? {
+                    b'[' | b'(' | b'{' => {
+                        depth += 1;
+                        self.i += 1;
+                    }
+                    b']' | b')' | b'}' => {
+                        depth = depth.checked_sub(1)?;
+                        self.i += 1;
+                        if depth == 0 {
+                            return Some(());
+                        }
+                    }
+                    b'"' => self.string()?,
+                    _ => self.i += 1,
+                }
+            }
+        }
+
+        fn value(&mut self, depth: usize) -> Option<Node> {
+            if depth > MAX_DEPTH {
+                return None;
+            }
+            self.ws();
+            let start = self.i;
+            let kind = match self.peek()? {
+                b'(' => self.paren_body(depth)?,
+                b'[' => {
+                    self.i += 1;
+                    Kind::Items(self.list(b']', depth)?)
+                }
+                b'{' => {
+                    self.i += 1;
+                    self.map(depth)?
+                }
+                b'"' => {
+                    self.string()?;
+                    Kind::Leaf
+                }
+                b'\'' => {
+                    self.char_lit()?;
+                    Kind::Leaf
+                }
+                b'b' if matches!(self.peek_at(1), Some(b'"' | b'\'')) => {
+                    self.i += 1;
+                    if self.peek() == Some(b'"') {
+                        self.string()?;
+                    } else {
+                        self.char_lit()?;
+                    }
+                    Kind::Leaf
+                }
+                b'b' if self.peek_at(1) == Some(b'r') && self.raw_string_ahead(2) => {
+                    self.i += 1;
+                    self.raw_string()?;
+                    Kind::Leaf
+                }
+                b'r' if self.raw_string_ahead(1) => {
+                    self.raw_string()?;
+                    Kind::Leaf
+                }
+                b if is_ident_start(b) => {
+                    self.ident()?;
+                    let after = self.i;
+                    self.ws();
+                    if self.peek() == Some(b'(') {
+                        self.paren_body(depth)?
+                    } else {
+                        self.i = after;
+                        Kind::Leaf
+                    }
+                }
+                b if b.is_ascii_digit() || matches!(b, b'+' | b'-' | b'.') => {
+                    self.i += 1;
+                    while self
+                        .peek()
+                        .is_some_and(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_'))
+                        || (matches!(self.peek(), Some(b'+' | b'-'))
+                            && matches!(self.s[self.i - 1], b'e' | b'E'))
+                    {
+                        self.i += 1;
+                    }
+                    Kind::Leaf
+                }
+                _ => return None,
+            };
+            Some(Node {
+                start,
+                end: self.i,
+                kind,
+            })
+        }
+
+        /// Whether a raw string (`r"`, `r#"`, `r##"` ...) starts `ahead` bytes past a `r`
+        /// at the cursor.
+        fn raw_string_ahead(&self, ahead: usize) -> bool {
+            let mut k = self.i + ahead;
+            while self.s.get(k) == Some(&b'#') {
+                k += 1;
+            }
+            self.s.get(k) == Some(&b'"')
+        }
+
+        /// Consumes `r#*"..."#*` with the cursor on the `r`.
+        fn raw_string(&mut self) -> Option<()> {
+            self.i += 1;
+            let mut hashes = 0;
+            while self.peek() == Some(b'#') {
+                hashes += 1;
+                self.i += 1;
+            }
+            self.i += 1; // opening quote
+            loop {
+                let b = self.peek()?;
+                self.i += 1;
+                if b == b'"' && (0..hashes).all(|k| self.peek_at(k) == Some(b'#')) {
+                    self.i += hashes;
+                    return Some(());
+                }
+            }
+        }
+
+        /// Consumes `"..."` with escapes, cursor on the opening quote.
+        fn string(&mut self) -> Option<()> {
+            self.i += 1;
+            loop {
+                match self.peek()? {
+                    b'\\' => self.i += 2,
+                    b'"' => {
+                        self.i += 1;
+                        return Some(());
+                    }
+                    _ => self.i += 1,
+                }
+            }
+        }
+
+        /// Consumes `'c'`, `'\n'`, `'\u{..}'`, cursor on the opening quote.
+        fn char_lit(&mut self) -> Option<()> {
+            self.i += 1;
+            loop {
+                match self.peek()? {
+                    b'\\' => self.i += 2,
+                    b'\'' => {
+                        self.i += 1;
+                        return Some(());
+                    }
+                    _ => self.i += 1,
+                }
+            }
+        }
+
+        /// Consumes an identifier (optionally `r#`-prefixed) and returns its name.
+        fn ident(&mut self) -> Option<String> {
+            let raw = self.peek() == Some(b'r')
+                && self.peek_at(1) == Some(b'#')
+                && self.peek_at(2).is_some_and(is_ident_char);
+            if raw {
+                self.i += 2;
+            }
+            let start = self.i;
+            if !self
+                .peek()
+                .is_some_and(if raw { is_ident_char } else { is_ident_start })
+            {
+                return None;
+            }
+            while self.peek().is_some_and(is_ident_char) {
+                self.i += 1;
+            }
+            std::str::from_utf8(&self.s[start..self.i])
+                .ok()
+                .map(str::to_string)
+        }
+
+        /// A parenthesised body with the cursor on `(`: struct fields or tuple items.
+        fn paren_body(&mut self, depth: usize) -> Option<Kind> {
+            self.i += 1;
+            let mut fields = Vec::new();
+            let mut items = Vec::new();
+            loop {
+                self.ws();
+                if self.peek()? == b')' {
+                    self.i += 1;
+                    break;
+                }
+                let save = self.i;
+                let mut is_field = false;
+                if self.peek().is_some_and(is_ident_start)
+                    && !self.raw_string_ahead(1)
+                    && let Some(name) = self.ident()
+                {
+                    self.ws();
+                    if self.peek() == Some(b':') {
+                        self.i += 1;
+                        let value = self.value(depth + 1)?;
+                        fields.push(Field {
+                            name,
+                            name_start: save,
+                            value,
+                        });
+                        is_field = true;
+                    }
+                }
+                if !is_field {
+                    self.i = save;
+                    items.push(self.value(depth + 1)?);
+                }
+                self.ws();
+                match self.peek()? {
+                    b',' => self.i += 1,
+                    b')' => {}
+                    _ => return None,
+                }
+            }
+            Some(if fields.is_empty() {
+                Kind::Items(items)
+            } else {
+                Kind::Fields(fields)
+            })
+        }
+
+        /// Comma-separated values up to `close`, cursor just past the opener.
+        fn list(&mut self, close: u8, depth: usize) -> Option<Vec<Node>> {
+            let mut items = Vec::new();
+            loop {
+                self.ws();
+                if self.peek()? == close {
+                    self.i += 1;
+                    return Some(items);
+                }
+                items.push(self.value(depth + 1)?);
+                self.ws();
+                match self.peek()? {
+                    b',' => self.i += 1,
+                    b if b == close => {}
+                    _ => return None,
+                }
+            }
+        }
+
+        /// A map body `{k: v, ...}`, cursor just past `{`; keeps the values.
+        fn map(&mut self, depth: usize) -> Option<Kind> {
+            let mut values = Vec::new();
+            loop {
+                self.ws();
+                if self.peek()? == b'}' {
+                    self.i += 1;
+                    return Some(Kind::Items(values));
+                }
+                self.value(depth + 1)?;
+                self.ws();
+                if self.peek()? != b':' {
+                    return None;
+                }
+                self.i += 1;
+                values.push(self.value(depth + 1)?);
+                self.ws();
+                match self.peek()? {
+                    b',' => self.i += 1,
+                    b'}' => {}
+                    _ => return None,
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outline_finds_nested_fields_through_enums_and_newtypes() {
+        let text = "#![enable(implicit_some)]\n// comment (with parens\n(\n  name: \"a) \\\"b\",\n  data: Synthetic((w: 3, s: r#\"x\"y\"#)),\n  densify: (\n    tat_form: Paper(beta: 1e-3, alpha: -2),\n  ),\n  /* block /* nested */ */ train: (background: [0, 0.5, 1]),\n)\n";
+        assert_eq!(locate_field(text, "name"), Some(4));
+        assert_eq!(locate_field(text, "data.w"), Some(5));
+        assert_eq!(locate_field(text, "densify.tat_form.alpha"), Some(7));
+        assert_eq!(locate_field(text, "densify.grad_threshold"), Some(6));
+        assert_eq!(locate_field(text, "train.background[2]"), Some(9));
+        assert_eq!(locate_field(text, "model.sh_degree"), None);
+    }
+
+    #[test]
+    fn outline_rejects_trailing_garbage_and_unbalanced_values() {
+        assert!(outline::parse_single("(a: 1").is_none());
+        assert!(outline::parse_single("1 2").is_none());
+        assert!(outline::parse_single("Implementation(beta: 0.5, alpha: 2)").is_some());
+        assert!(outline::parse_single("-1.5e-3").is_some());
+    }
+}

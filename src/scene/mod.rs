@@ -3,5 +3,7 @@
 pub mod load;
 pub mod types;
 
-pub use load::{SceneError, load_scene, parse_scene};
+pub use load::{
+    SceneError, apply_overrides, load_scene, locate_field, parse_scene, set_override, validate,
+};
 pub use types::*;

@@ -40,7 +40,7 @@ pub enum DataSource {
 
 /// How the initial Gaussians are made.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct InitConfig {
     /// Anchor (temporal centre) spacing in frames; the last frame is always an anchor.
     pub anchor_spacing: usize,
@@ -54,7 +54,12 @@ pub struct InitConfig {
 
 impl Default for InitConfig {
     fn default() -> Self {
-        Self { anchor_spacing: 20, points_per_anchor: 2000, opacity: 0.1, lifespan_half_frames: 25.0 }
+        Self {
+            anchor_spacing: 20,
+            points_per_anchor: 2000,
+            opacity: 0.1,
+            lifespan_half_frames: 25.0,
+        }
     }
 }
 
@@ -76,7 +81,7 @@ pub enum PhaseModel {
 
 /// Temporal Offset Warping settings.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct TowConfig {
     pub enabled: bool,
     /// Focus window in frames; λ = window_frames / T.
@@ -87,13 +92,17 @@ pub struct TowConfig {
 
 impl Default for TowConfig {
     fn default() -> Self {
-        Self { enabled: true, window_frames: 50.0, rho: 0.75 }
+        Self {
+            enabled: true,
+            window_frames: 50.0,
+            rho: 0.75,
+        }
     }
 }
 
 /// Deformation model settings.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct ModelConfig {
     /// Highest SH degree (0..=3).
     pub sh_degree: u32,
@@ -118,6 +127,7 @@ impl Default for ModelConfig {
 
 /// The densification threshold's dependence on lifespan.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
 pub enum TatForm {
     /// Paper: τ·(1 / (1 + β(1 − ψ̄)))^α.
     Paper { beta: f32, alpha: f32 },
@@ -127,7 +137,7 @@ pub enum TatForm {
 
 /// Densification schedule and criteria.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct DensifyConfig {
     /// Visibility-aware densification: opacity-weighted mean of the 2D gradient.
     pub vad: bool,
@@ -157,7 +167,10 @@ impl Default for DensifyConfig {
             vad: true,
             vad_min_opacity: None,
             tat: true,
-            tat_form: TatForm::Paper { beta: 0.3, alpha: 1.0 },
+            tat_form: TatForm::Paper {
+                beta: 0.3,
+                alpha: 1.0,
+            },
             grad_threshold: 2e-4,
             percent_dense: 0.01,
             interval: 200,
@@ -173,7 +186,7 @@ impl Default for DensifyConfig {
 
 /// Learning rates (SPEC §1).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct LearningRates {
     /// Initial position lr, multiplied by the scene extent.
     pub position: f32,
@@ -221,7 +234,7 @@ pub enum BackendKind {
 
 /// Optimisation schedule.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct TrainConfig {
     pub iterations: u32,
     pub seed: u64,
