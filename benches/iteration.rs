@@ -93,15 +93,10 @@ fn world_with(n: usize) -> World {
         }]],
         dynamic_masks: None,
     };
-    let mut config = SceneConfig {
-        name: "bench".into(),
-        data: DataSource::Synthetic(tadgs::data::synthetic::demo_scene()),
-        init: Default::default(),
-        model: Default::default(),
-        densify: Default::default(),
-        train: Default::default(),
-        output: String::new(),
-    };
+    let mut config = SceneConfig::new(
+        "bench",
+        DataSource::Synthetic(tadgs::data::synthetic::demo_scene()),
+    );
     config.model.sh_degree = 0;
     config.densify.until_iter = 0; // no densification
     config.densify.opacity_reset_interval = 0;

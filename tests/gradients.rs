@@ -48,15 +48,10 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
         images: vec![vec![gt; frames]],
         dynamic_masks: None,
     };
-    let mut config = SceneConfig {
-        name: "gradients".into(),
-        data: DataSource::Synthetic(tadgs::data::synthetic::demo_scene()),
-        init: Default::default(),
-        model: Default::default(),
-        densify: Default::default(),
-        train: Default::default(),
-        output: String::new(),
-    };
+    let mut config = SceneConfig::new(
+        "gradients",
+        DataSource::Synthetic(tadgs::data::synthetic::demo_scene()),
+    );
     config.model.phase = phase;
     config.model.opacity = opacity_model;
     config.model.tow.window_frames = 4.0; // λ = 4/11: the view time lies outside some windows

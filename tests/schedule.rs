@@ -20,15 +20,7 @@ fn tiny_scene() -> (SceneConfig, Arc<Dataset>) {
     synthetic.frames = 6;
     synthetic.width = 48;
     synthetic.height = 36;
-    let mut config = SceneConfig {
-        name: "tiny".into(),
-        data: DataSource::Synthetic(synthetic.clone()),
-        init: Default::default(),
-        model: Default::default(),
-        densify: Default::default(),
-        train: Default::default(),
-        output: "unused".into(),
-    };
+    let mut config = SceneConfig::new("tiny", DataSource::Synthetic(synthetic.clone()));
     config.init.points_per_anchor = 300;
     config.init.anchor_spacing = 3;
     config.train.iterations = 200;

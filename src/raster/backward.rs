@@ -3,10 +3,8 @@
 use rayon::prelude::*;
 
 use super::binning::split_by_offsets;
-use super::forward::power;
 use super::{
-    ALPHA_MAX, ALPHA_MIN, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS, exp_falloff,
-    pixels_in_box,
+    ALPHA_MAX, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS, box_pixels, falloff_at, min_power,
 };
 
 impl Rasterizer {
@@ -99,25 +97,16 @@ fn backward_tile(
     for k in (0..max_contributor).rev() {
         let sp = &splats[entries[k] as usize];
         let mut g = SplatGrad::default();
-        let (x0, x1, y0, y1) = pixels_in_box(sp, origin);
-        let min_power = (ALPHA_MIN / sp.opacity).ln() - 1e-4;
-        for p in (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * TILE + x)) {
+        let min_power = min_power(sp);
+        for p in box_pixels(sp, origin) {
             if k >= contributors[p] as usize {
                 continue;
             }
-            let dx = (origin.0 + p % TILE) as f32 + 0.5 - sp.mean2d.x;
-            let dy = (origin.1 + p / TILE) as f32 + 0.5 - sp.mean2d.y;
-            let pw = power(&sp.conic, dx, dy);
-            // Below this exponent alpha < 1/255 (and a positive one is numerical noise).
-            if pw > 0.0 || pw < min_power {
+            let Some((dx, dy, gauss)) = falloff_at(sp, origin, p, min_power) else {
                 continue;
-            }
-            let gauss = exp_falloff(pw);
+            };
             let raw_alpha = sp.opacity * gauss;
             let alpha = raw_alpha.min(ALPHA_MAX);
-            if alpha < ALPHA_MIN {
-                continue;
-            }
             // Transmittance in front of this splat.
             let t = transmittance[p] / (1.0 - alpha);
             transmittance[p] = t;

@@ -3,8 +3,8 @@
 use rayon::prelude::*;
 
 use super::{
-    ALPHA_MAX, ALPHA_MIN, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN,
-    exp_falloff, pixels_in_box, untile,
+    ALPHA_MAX, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_pixels,
+    falloff_at, min_power, untile,
 };
 
 /// Gaussian falloff exponent at offset (dx, dy) from the centre.
@@ -102,23 +102,15 @@ fn blend_tile(
             break;
         }
         let sp = &splats[s as usize];
-        let (x0, x1, y0, y1) = pixels_in_box(sp, origin);
-        let min_power = (ALPHA_MIN / sp.opacity).ln() - 1e-4;
-        for p in (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * TILE + x)) {
+        let min_power = min_power(sp);
+        for p in box_pixels(sp, origin) {
             if !active[p] {
                 continue;
             }
-            let dx = (origin.0 + p % TILE) as f32 + 0.5 - sp.mean2d.x;
-            let dy = (origin.1 + p / TILE) as f32 + 0.5 - sp.mean2d.y;
-            let pw = power(&sp.conic, dx, dy);
-            // Below this exponent alpha < 1/255 (and a positive one is numerical noise).
-            if pw > 0.0 || pw < min_power {
+            let Some((_, _, gauss)) = falloff_at(sp, origin, p, min_power) else {
                 continue;
-            }
-            let alpha = (sp.opacity * exp_falloff(pw)).min(ALPHA_MAX);
-            if alpha < ALPHA_MIN {
-                continue;
-            }
+            };
+            let alpha = (sp.opacity * gauss).min(ALPHA_MAX);
             let t = transmittance[p];
             let next = t * (1.0 - alpha);
             if next < TRANSMITTANCE_MIN {

@@ -129,10 +129,10 @@ pub fn exp_falloff(x: f32) -> f32 {
     f32::from_bits(((n as i32 + 127) as u32) << 23) * p
 }
 
-/// The pixels of a tile (as tile-local [x0, x1) × [y0, y1)) inside a splat's screen box: outside
-/// it, the splat's alpha is below 1/255 (see `Splat::extent`), so those pixels can be skipped.
+/// Tile-local pixel indices inside a splat's screen box: outside it the splat's alpha is below
+/// 1/255 (see [`Splat::extent`]), so those pixels are skipped.
 #[inline]
-fn pixels_in_box(splat: &Splat, origin: (usize, usize)) -> (usize, usize, usize, usize) {
+fn box_pixels(splat: &Splat, origin: (usize, usize)) -> impl Iterator<Item = usize> {
     let local = |centre: f32, extent: f32, start: usize| {
         let lo = (centre - extent - 0.5 - start as f32).floor().max(0.0) as usize;
         let hi =
@@ -141,7 +141,35 @@ fn pixels_in_box(splat: &Splat, origin: (usize, usize)) -> (usize, usize, usize,
     };
     let (x0, x1) = local(splat.mean2d.x, splat.extent.x, origin.0);
     let (y0, y1) = local(splat.mean2d.y, splat.extent.y, origin.1);
-    (x0, x1, y0, y1)
+    (y0..y1).flat_map(move |y| (x0..x1).map(move |x| y * TILE + x))
+}
+
+/// The exponent below which a splat's alpha is under 1/255 (with a little slack for rounding;
+/// the alpha test itself follows).
+#[inline]
+fn min_power(splat: &Splat) -> f32 {
+    (ALPHA_MIN / splat.opacity).ln() - 1e-4
+}
+
+/// Offset (dx, dy) of tile pixel `p` from the splat centre and the Gaussian falloff G there,
+/// or None where the splat is not drawn (alpha < 1/255). Forward and backward share it so they
+/// agree on every pixel.
+#[inline(always)]
+fn falloff_at(
+    splat: &Splat,
+    origin: (usize, usize),
+    p: usize,
+    min_power: f32,
+) -> Option<(f32, f32, f32)> {
+    let dx = (origin.0 + p % TILE) as f32 + 0.5 - splat.mean2d.x;
+    let dy = (origin.1 + p / TILE) as f32 + 0.5 - splat.mean2d.y;
+    let pw = forward::power(&splat.conic, dx, dy);
+    // Below `min_power` alpha < 1/255; a positive exponent is numerical noise.
+    if pw > 0.0 || pw < min_power {
+        return None;
+    }
+    let gauss = exp_falloff(pw);
+    (splat.opacity * gauss >= ALPHA_MIN).then_some((dx, dy, gauss))
 }
 
 /// Reorders a tile-major buffer into a row-major image of `width × height`.

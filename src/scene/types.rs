@@ -27,6 +27,21 @@ pub struct SceneConfig {
     pub output: String,
 }
 
+impl SceneConfig {
+    /// A scene with the given data source and every other setting at its default.
+    pub fn new(name: impl Into<String>, data: DataSource) -> Self {
+        Self {
+            name: name.into(),
+            data,
+            init: InitConfig::default(),
+            model: ModelConfig::default(),
+            densify: DensifyConfig::default(),
+            train: TrainConfig::default(),
+            output: default_output(),
+        }
+    }
+}
+
 fn default_output() -> String {
     "runs/out".into()
 }
