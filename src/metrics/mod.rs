@@ -10,7 +10,9 @@
 
 use crate::io::image::Image;
 
+pub mod flow;
 pub mod loss;
+pub mod lpips;
 pub mod psnr;
 pub mod ssim;
 
