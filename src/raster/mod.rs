@@ -122,7 +122,7 @@ pub fn exp_falloff(x: f32) -> f32 {
     let f = t - n; // in [−½, ½]
     // 2^f = e^(f ln 2) by its Taylor series to degree 6 (truncation error < 1.2e-7 on [−½, ½]).
     let p = 1.0
-        + f * (0.693_147_2
+        + f * (std::f32::consts::LN_2
             + f * (0.240_226_5
                 + f * (0.055_504_11
                     + f * (0.009_618_129 + f * (0.001_333_355_8 + f * 0.000_154_035_3)))));
