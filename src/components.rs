@@ -134,27 +134,24 @@ pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync +
     }
 }
 
-impl Param for Position {
-    const NAME: &'static str = "position";
+/// Implements [`Param`] for each `component => "name"` pair.
+macro_rules! params {
+    ($($component:ty => $name:literal),* $(,)?) => {
+        $(impl Param for $component {
+            const NAME: &'static str = $name;
+        })*
+    };
 }
-impl Param for Fourier {
-    const NAME: &'static str = "fourier";
-}
-impl Param for Temporal {
-    const NAME: &'static str = "temporal";
-}
-impl Param for Opacity {
-    const NAME: &'static str = "opacity";
-}
-impl Param for Rotation {
-    const NAME: &'static str = "rotation";
-}
-impl Param for Scale {
-    const NAME: &'static str = "scale";
-}
-impl Param for Color {
-    const NAME: &'static str = "color";
-}
+
+params!(
+    Position => "position",
+    Fourier => "fourier",
+    Temporal => "temporal",
+    Opacity => "opacity",
+    Rotation => "rotation",
+    Scale => "scale",
+    Color => "color",
+);
 
 /// This iteration's gradient of the loss with respect to parameter component `P`.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]

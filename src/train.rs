@@ -48,7 +48,9 @@ pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dat
     world.insert_resource(TrainingViews(dataset));
     world.insert_resource(ViewOrder::default());
     world.insert_resource(Rng::seeded(scene.train.seed));
-    world.insert_resource(Backend::Cpu);
+    world.insert_resource(match scene.train.backend {
+        crate::scene::BackendKind::Cpu => Backend::Cpu,
+    });
     world.insert_resource(SplatBuffers::default());
     world.insert_resource(LossImage::default());
 }
