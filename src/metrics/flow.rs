@@ -102,24 +102,7 @@ impl Flow {
 ///
 /// When the two images do not have the same size or a buffer length does not match its size.
 pub fn dense_flow(a: &Image, b: &Image) -> Flow {
-    assert_eq!(
-        (a.width, a.height),
-        (b.width, b.height),
-        "dense_flow: image sizes differ ({}x{} vs {}x{})",
-        a.width,
-        a.height,
-        b.width,
-        b.height
-    );
-    for img in [a, b] {
-        assert_eq!(
-            img.data.len(),
-            img.width * img.height,
-            "dense_flow: image buffer length does not match its {}x{} size",
-            img.width,
-            img.height
-        );
-    }
+    super::assert_same_size(a, b);
     let (w, h) = (a.width, a.height);
     if w == 0 || h == 0 {
         return Flow {
