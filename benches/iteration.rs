@@ -81,18 +81,12 @@ fn world_with(n: usize) -> World {
     let target: Vec<[f32; 3]> = (0..(WIDTH * HEIGHT) as usize)
         .map(|i| [((i % 97) as f32) / 97.0, 0.5, 0.3])
         .collect();
-    let dataset = Dataset {
-        cameras: vec![cam],
-        frame_count: 1,
-        train_cameras: vec![0],
-        test_cameras: vec![],
-        images: vec![vec![Image {
-            width: WIDTH as usize,
-            height: HEIGHT as usize,
-            data: target,
-        }]],
-        dynamic_masks: None,
+    let image = Image {
+        width: WIDTH as usize,
+        height: HEIGHT as usize,
+        data: target,
     };
+    let dataset = Dataset::single_camera(cam, 1, &image);
     let mut config = SceneConfig::new(
         "bench",
         DataSource::Synthetic(tadgs::data::synthetic::demo_scene()),

@@ -136,11 +136,12 @@ fn train(config: &SceneConfig, output: &Path, quiet: bool) -> Result<()> {
     tracing::info!("scene `{}`: preparing data", config.name);
     let dataset = Arc::new(load_dataset(config)?);
     tracing::info!(
-        "{} cameras ({} train, {} held out), {} frames, {}×{} px, in {:.1} s",
+        "{} cameras ({} train, {} held out), {} frames, {} training views, {}×{} px, in {:.1} s",
         dataset.cameras.len(),
-        dataset.train_cameras.len(),
-        dataset.test_cameras.len(),
+        dataset.train_cameras().len(),
+        dataset.test_cameras().len(),
         dataset.frame_count,
+        dataset.train.len(),
         dataset.cameras[0].width,
         dataset.cameras[0].height,
         start.elapsed().as_secs_f32()

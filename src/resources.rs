@@ -93,17 +93,18 @@ pub struct TrainingViews(pub Arc<Dataset>);
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct ViewSample {
     pub camera: Camera,
-    /// Index into the dataset's cameras, when the view is from the dataset.
-    pub camera_index: Option<usize>,
+    /// Index into the dataset's training views, when the view is one of them.
+    pub view: Option<usize>,
     pub frame: usize,
     /// Normalised time in [0, 1].
     pub time: f32,
 }
 
-/// Random order of (camera, frame) training views, reshuffled every epoch.
+/// Random order of the training views (indices into the dataset's `train`), reshuffled every
+/// epoch.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct ViewOrder {
-    pub order: Vec<(usize, usize)>,
+    pub order: Vec<usize>,
     pub next: usize,
 }
 
@@ -152,6 +153,8 @@ pub struct SplatBuffers {
 #[derive(Resource, Default)]
 pub struct LossImage {
     pub value: LossValue,
+    /// The ground truth of the sampled view as `f32` (decoded into the same buffer each time).
+    pub target: crate::io::image::Image,
     pub d_color: Vec<[f32; 3]>,
     pub scratch: LossScratch,
 }

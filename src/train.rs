@@ -36,12 +36,12 @@ pub fn init_task_pool() {
 pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dataset>) {
     init_task_pool();
     let settings = Settings::new(scene, dataset.frame_count, scene_extent(&dataset.cameras));
-    let first = dataset.train_cameras.first().copied().unwrap_or(0);
+    let first = dataset.train.first();
     world.insert_resource(ViewSample {
-        camera: dataset.cameras[first],
-        camera_index: Some(first),
-        frame: 0,
-        time: 0.0,
+        camera: first.map_or(dataset.cameras[0], |v| dataset.cameras[v.camera]),
+        view: first.map(|_| 0),
+        frame: first.map_or(0, |v| v.frame),
+        time: first.map_or(0.0, |v| v.time),
     });
     world.insert_resource(settings);
     world.insert_resource(TrainState::default());
@@ -60,7 +60,7 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> usize 
     let settings = world.resource::<Settings>().clone();
     let dataset = world.resource::<TrainingViews>().0.clone();
     let train_cameras: Vec<Camera> = dataset
-        .train_cameras
+        .train_cameras()
         .iter()
         .map(|&c| dataset.cameras[c])
         .collect();
@@ -176,7 +176,7 @@ impl Trainer {
         let frame = self.world.resource::<ViewSample>().frame;
         *self.world.resource_mut::<ViewSample>() = ViewSample {
             camera: *camera,
-            camera_index: None,
+            view: None,
             frame,
             time,
         };
@@ -184,28 +184,28 @@ impl Trainer {
         self.world.resource::<SplatBuffers>().render.clone()
     }
 
-    /// Renders every held-out camera at every frame and compares with the ground truth.
+    /// Renders every held-out view and compares it with its ground truth.
     /// `on_view` sees each render next to its ground truth (for saving images).
     pub fn evaluate(
         &mut self,
         mut on_view: impl FnMut(&ViewMetrics, &Image, &Image),
     ) -> Vec<ViewMetrics> {
         let dataset = self.world.resource::<TrainingViews>().0.clone();
-        let mut metrics = Vec::new();
-        for &camera in &dataset.test_cameras {
-            for frame in 0..dataset.frame_count {
-                let out = self.render(&dataset.cameras[camera], dataset.frame_time(frame));
-                let gt = &dataset.images[camera][frame];
-                let mask = dataset.dynamic_masks.as_ref().map(|m| &m[camera][frame]);
-                let view = ViewMetrics {
-                    camera,
-                    frame,
-                    psnr: psnr(&out.image, gt),
-                    masked_psnr: mask.and_then(|m| masked_psnr(&out.image, gt, m)),
-                };
-                on_view(&view, &out.image, gt);
-                metrics.push(view);
-            }
+        let mut metrics = Vec::with_capacity(dataset.test.len());
+        for view in &dataset.test {
+            let out = self.render(&dataset.cameras[view.camera], view.time);
+            let gt = view.to_image();
+            let result = ViewMetrics {
+                camera: view.camera,
+                frame: view.frame,
+                psnr: psnr(&out.image, &gt),
+                masked_psnr: view
+                    .dynamic_mask
+                    .as_ref()
+                    .and_then(|m| masked_psnr(&out.image, &gt, m)),
+            };
+            on_view(&result, &out.image, &gt);
+            metrics.push(result);
         }
         metrics
     }

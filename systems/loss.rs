@@ -14,15 +14,13 @@ pub fn loss(
     mut loss: ResMut<LossImage>,
     mut state: ResMut<TrainState>,
 ) {
-    let camera = sample
-        .camera_index
-        .expect("training views come from the dataset");
-    let gt = &views.0.images[camera][sample.frame];
+    let index = sample.view.expect("training views come from the dataset");
     let loss = &mut *loss;
+    views.0.train[index].copy_image_into(&mut loss.target);
     loss.value = training_loss(
         &mut loss.scratch,
         &buffers.render.image,
-        gt,
+        &loss.target,
         settings.train.lambda_dssim,
         &mut loss.d_color,
     );

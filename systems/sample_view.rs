@@ -14,7 +14,7 @@ pub fn advance_iteration(settings: Res<Settings>, mut state: ResMut<TrainState>)
     }
 }
 
-/// Samples (camera, frame) uniformly without replacement within an epoch.
+/// Samples a training view uniformly without replacement within an epoch.
 pub fn sample_view(
     views: Res<TrainingViews>,
     mut order: ResMut<ViewOrder>,
@@ -24,20 +24,17 @@ pub fn sample_view(
     let dataset = &views.0;
     if order.next >= order.order.len() {
         order.order.clear();
-        for &camera in &dataset.train_cameras {
-            order
-                .order
-                .extend((0..dataset.frame_count).map(|frame| (camera, frame)));
-        }
+        order.order.extend(0..dataset.train.len());
         order.order.shuffle(&mut rng.0);
         order.next = 0;
     }
-    let (camera, frame) = order.order[order.next];
+    let index = order.order[order.next];
     order.next += 1;
+    let view = &dataset.train[index];
     *sample = ViewSample {
-        camera: dataset.cameras[camera],
-        camera_index: Some(camera),
-        frame,
-        time: dataset.frame_time(frame),
+        camera: dataset.cameras[view.camera],
+        view: Some(index),
+        frame: view.frame,
+        time: view.time,
     };
 }

@@ -40,14 +40,7 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
         height: H as usize,
         data: target,
     };
-    let dataset = Dataset {
-        cameras: vec![camera],
-        frame_count: frames,
-        train_cameras: vec![0],
-        test_cameras: vec![],
-        images: vec![vec![gt; frames]],
-        dynamic_masks: None,
-    };
+    let dataset = Dataset::single_camera(camera, frames, &gt);
     let mut config = SceneConfig::new(
         "gradients",
         DataSource::Synthetic(tadgs::data::synthetic::demo_scene()),
@@ -60,7 +53,7 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
     world.resource_mut::<TrainState>().sh_degree = 3;
     *world.resource_mut::<ViewSample>() = ViewSample {
         camera,
-        camera_index: Some(0),
+        view: Some(7),
         frame: 7,
         time: 0.7,
     };

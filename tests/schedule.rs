@@ -9,7 +9,7 @@ use tadgs::components::*;
 use tadgs::data::Dataset;
 use tadgs::data::synthetic::demo_scene;
 use tadgs::metrics::loss::{LossScratch, training_loss};
-use tadgs::resources::{TrainState, TrainingViews};
+use tadgs::resources::TrainState;
 use tadgs::scene::{DataSource, SceneConfig};
 use tadgs::systems::{TrainSet, training_schedule};
 use tadgs::train::{Trainer, insert_resources, spawn_initial_gaussians};
@@ -29,13 +29,17 @@ fn tiny_scene() -> (SceneConfig, Arc<Dataset>) {
 }
 
 fn fixed_view_loss(trainer: &mut Trainer, dataset: &Dataset) -> f32 {
-    let camera = dataset.train_cameras[0];
-    let out = trainer.render(&dataset.cameras[camera], dataset.frame_time(2));
+    let view = dataset
+        .train
+        .iter()
+        .find(|v| v.frame == 2)
+        .expect("frame 2 is a training frame");
+    let out = trainer.render(&dataset.cameras[view.camera], view.time);
     let mut d = Vec::new();
     training_loss(
         &mut LossScratch::default(),
         &out.image,
-        &dataset.images[camera][2],
+        &view.to_image(),
         0.2,
         &mut d,
     )

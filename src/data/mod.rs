@@ -1,35 +1,143 @@
-//! Cameras and multi-view video datasets.
+//! Cameras, multi-view video datasets and their readers.
 
 pub mod camera;
+pub mod carve;
+pub mod colmap;
+pub mod dnerf;
+pub mod error;
 pub mod init;
+pub mod n3dv;
+pub mod panoptic;
+pub mod pointcloud;
 pub mod synthetic;
 
 pub use camera::Camera;
+pub use error::DataError;
 
 use crate::io::image::Image;
 
-/// A multi-view video held in memory: `images[camera][frame]`.
+/// One observed image: which camera saw it, at which frame and normalised time.
+///
+/// Images are kept as 8-bit RGB (a quarter of the memory of [`Image`]): a 27-camera,
+/// 150-frame capture at 640×360 fits in 2.8 GB. Masks are `width × height` booleans in
+/// row-major order.
 #[derive(Clone, Debug)]
+pub struct View {
+    /// Index into [`Dataset::cameras`].
+    pub camera: usize,
+    /// Frame index in `0..frame_count`.
+    pub frame: usize,
+    /// Normalised time in [0, 1] (usually `frame / (T − 1)`; readers with their own time
+    /// stamps, such as D-NeRF, give them exactly).
+    pub time: f32,
+    /// The image, of its camera's size.
+    pub image: image::RgbImage,
+    /// Dynamic-region mask for the masked metrics (true = dynamic), where known.
+    pub dynamic_mask: Option<Vec<bool>>,
+    /// Foreground segmentation (true = foreground), where the dataset ships one; used by
+    /// the visual-hull initialiser.
+    pub foreground: Option<Vec<bool>>,
+}
+
+impl View {
+    /// The image as linear `f32` RGB in [0, 1].
+    pub fn to_image(&self) -> Image {
+        let mut out = Image::filled(0, 0, [0.0; 3]);
+        self.copy_image_into(&mut out);
+        out
+    }
+
+    /// Writes the image into `out` as `f32` RGB, reusing its allocation.
+    pub fn copy_image_into(&self, out: &mut Image) {
+        out.copy_from_rgb8(&self.image);
+    }
+}
+
+/// A multi-view video held in memory: training and held-out views with their cameras.
+#[derive(Clone, Debug, Default)]
 pub struct Dataset {
     pub cameras: Vec<Camera>,
+    /// Number of frames T of the sequence (the model's time base: λ = window / T).
     pub frame_count: usize,
-    /// Camera indices used for training.
-    pub train_cameras: Vec<usize>,
-    /// Held-out camera indices used for evaluation.
-    pub test_cameras: Vec<usize>,
-    /// `images[camera][frame]`, every image of its camera's size.
-    pub images: Vec<Vec<Image>>,
-    /// Optional exact dynamic-region masks, `masks[camera][frame][pixel]` (true = dynamic).
-    pub dynamic_masks: Option<Vec<Vec<Vec<bool>>>>,
+    /// Views to train on, in a fixed order (sampling shuffles indices into this list).
+    pub train: Vec<View>,
+    /// Held-out views for evaluation.
+    pub test: Vec<View>,
+    /// An initial point cloud shipped with the dataset, if any.
+    pub points: Option<Vec<init::InitPoint>>,
 }
 
 impl Dataset {
     /// Normalised time of a frame: `frame / (T − 1)` in [0, 1].
     pub fn frame_time(&self, frame: usize) -> f32 {
-        if self.frame_count <= 1 {
-            0.0
-        } else {
-            frame as f32 / (self.frame_count - 1) as f32
+        frame_time(frame, self.frame_count)
+    }
+
+    /// A one-camera dataset that sees `image` at every one of `frame_count` frames (for tests,
+    /// benches and examples).
+    pub fn single_camera(camera: Camera, frame_count: usize, image: &Image) -> Self {
+        let rgb = image.to_rgb8();
+        let train = (0..frame_count)
+            .map(|frame| View {
+                camera: 0,
+                frame,
+                time: frame_time(frame, frame_count),
+                image: rgb.clone(),
+                dynamic_mask: None,
+                foreground: None,
+            })
+            .collect();
+        Self {
+            cameras: vec![camera],
+            frame_count,
+            train,
+            ..Self::default()
         }
     }
+
+    /// Distinct camera indices of the training views, in increasing order.
+    pub fn train_cameras(&self) -> Vec<usize> {
+        distinct_cameras(&self.train)
+    }
+
+    /// Distinct camera indices of the held-out views, in increasing order.
+    pub fn test_cameras(&self) -> Vec<usize> {
+        distinct_cameras(&self.test)
+    }
+
+    /// The held-out view of `camera` at `frame`, if there is one.
+    pub fn test_view(&self, camera: usize, frame: usize) -> Option<&View> {
+        self.test
+            .iter()
+            .find(|v| v.camera == camera && v.frame == frame)
+    }
+
+    /// Bytes of image and mask data held.
+    pub fn memory_bytes(&self) -> usize {
+        self.train
+            .iter()
+            .chain(&self.test)
+            .map(|v| {
+                v.image.as_raw().len()
+                    + v.dynamic_mask.as_ref().map_or(0, Vec::len)
+                    + v.foreground.as_ref().map_or(0, Vec::len)
+            })
+            .sum()
+    }
+}
+
+/// Normalised time of `frame` in a `frame_count`-frame sequence: `frame / (T − 1)`.
+pub fn frame_time(frame: usize, frame_count: usize) -> f32 {
+    if frame_count <= 1 {
+        0.0
+    } else {
+        frame as f32 / (frame_count - 1) as f32
+    }
+}
+
+fn distinct_cameras(views: &[View]) -> Vec<usize> {
+    let mut cameras: Vec<usize> = views.iter().map(|v| v.camera).collect();
+    cameras.sort_unstable();
+    cameras.dedup();
+    cameras
 }

@@ -15,7 +15,7 @@ use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::data::{Camera, Dataset};
+use crate::data::{Camera, Dataset, View};
 use crate::io::image::Image;
 
 /// Ambient share of the shading: a surface facing away from the light keeps this much of its
@@ -522,33 +522,38 @@ impl SyntheticScene {
         self.validate()?;
         let cameras = self.cameras();
         let frames = self.frames;
-        let mut rendered = (0..cameras.len() * frames)
+        let rendered: Vec<(Image, Vec<bool>)> = (0..cameras.len() * frames)
             .into_par_iter()
             .map(|k| {
                 let (camera, frame) = (k / frames, k % frames);
                 self.render(&cameras[camera], frame as f32 / (frames - 1) as f32)
             })
-            .collect::<Vec<_>>()
-            .into_iter();
-        let mut images = Vec::with_capacity(cameras.len());
-        let mut masks = Vec::with_capacity(cameras.len());
-        for _ in 0..cameras.len() {
-            let (camera_images, camera_masks): (Vec<_>, Vec<_>) =
-                rendered.by_ref().take(frames).unzip();
-            images.push(camera_images);
-            masks.push(camera_masks);
-        }
-        let train_cameras = (0..cameras.len())
-            .filter(|c| !self.held_out.contains(c))
             .collect();
-        Ok(Dataset {
+        let mut dataset = Dataset {
             cameras,
             frame_count: frames,
-            train_cameras,
-            test_cameras: self.held_out.clone(),
-            images,
-            dynamic_masks: Some(masks),
-        })
+            ..Dataset::default()
+        };
+        for (k, (image, mask)) in rendered.into_iter().enumerate() {
+            let (camera, frame) = (k / frames, k % frames);
+            let view = View {
+                camera,
+                frame,
+                time: dataset.frame_time(frame),
+                image: image.to_rgb8(),
+                dynamic_mask: Some(mask),
+                foreground: None,
+            };
+            if self.held_out.contains(&camera) {
+                dataset.test.push(view);
+            } else {
+                dataset.train.push(view);
+            }
+        }
+        // Held-out views in the order `held_out` lists their cameras.
+        let order = |v: &View| self.held_out.iter().position(|&c| c == v.camera);
+        dataset.test.sort_by_key(|v| (order(v), v.frame));
+        Ok(dataset)
     }
 }
 
@@ -1211,24 +1216,20 @@ mod tests {
         assert_eq!(dataset.frame_count, 3);
         assert_eq!(dataset.cameras.len(), 16);
         assert_eq!(
-            dataset.train_cameras,
+            dataset.train_cameras(),
             (0..16).filter(|&c| c != 5).collect::<Vec<_>>()
         );
-        assert_eq!(dataset.test_cameras, vec![5]);
-        assert_eq!(dataset.images.len(), 16);
-        let masks = dataset.dynamic_masks.as_ref().expect("masks");
-        assert_eq!(masks.len(), 16);
-        for (c, (images, masks)) in dataset.images.iter().zip(masks).enumerate() {
-            assert_eq!(images.len(), 3);
-            assert_eq!(masks.len(), 3);
-            for (f, (image, mask)) in images.iter().zip(masks).enumerate() {
-                assert_eq!((image.width, image.height), (32, 24));
-                assert_eq!(image.data.len(), 32 * 24);
-                assert_eq!(mask.len(), 32 * 24);
-                // The same as rendering that view alone.
-                let alone = scene.render(&dataset.cameras[c], dataset.frame_time(f));
-                assert_eq!((&alone.0, &alone.1), (image, mask));
-            }
+        assert_eq!(dataset.test_cameras(), vec![5]);
+        assert_eq!(dataset.train.len(), 15 * 3);
+        assert_eq!(dataset.test.len(), 3);
+        for view in dataset.train.iter().chain(&dataset.test) {
+            assert_eq!(view.image.dimensions(), (32, 24));
+            let mask = view.dynamic_mask.as_ref().expect("masks");
+            assert_eq!(mask.len(), 32 * 24);
+            assert_eq!(view.time, dataset.frame_time(view.frame));
+            // The same as rendering that view alone (quantised to 8 bits).
+            let alone = scene.render(&dataset.cameras[view.camera], view.time);
+            assert_eq!((&alone.0.to_rgb8(), &alone.1), (&view.image, mask));
         }
     }
 
@@ -1295,15 +1296,9 @@ mod tests {
         small.height = 60;
         small.supersample = 1;
         let dataset = small.build().expect("valid");
-        for (images, masks) in dataset
-            .images
-            .iter()
-            .zip(dataset.dynamic_masks.as_ref().unwrap())
-        {
-            for (image, mask) in images.iter().zip(masks) {
-                assert!(mask.iter().filter(|&&m| m).count() > 20);
-                assert!(image.data.iter().flatten().all(|c| (0.0..=1.0).contains(c)));
-            }
+        for view in dataset.train.iter().chain(&dataset.test) {
+            let mask = view.dynamic_mask.as_ref().unwrap();
+            assert!(mask.iter().filter(|&&m| m).count() > 20);
         }
     }
 
@@ -1317,7 +1312,16 @@ mod tests {
         let dataset = scene.build().expect("valid");
         println!("demo build: {:.2} s", start.elapsed().as_secs_f64());
         let (w, h) = (scene.width as usize, scene.height as usize);
-        dataset.images[0][30]
+        let view_of = |c: usize, f: usize| {
+            dataset
+                .train
+                .iter()
+                .chain(&dataset.test)
+                .find(|v| v.camera == c && v.frame == f)
+                .expect("every camera and frame is rendered")
+        };
+        view_of(0, 30)
+            .to_image()
             .save_png(std::path::Path::new("/tmp/demo_frame.png"))
             .expect("writes");
         // A contact sheet: cameras 0, 2, 4, 6 down, frames 0, 20, 30, 40, 59 across, and the
@@ -1327,14 +1331,14 @@ mod tests {
         let mut sheet = Image::filled(w * frames.len(), h * (rows.len() + 1), [0.0; 3]);
         for (col, &f) in frames.iter().enumerate() {
             for (row, &c) in rows.iter().enumerate() {
-                let image = &dataset.images[c][f];
+                let image = view_of(c, f).to_image();
                 for y in 0..h {
                     for x in 0..w {
                         sheet.data[(row * h + y) * sheet.width + col * w + x] = image.get(x, y);
                     }
                 }
             }
-            let mask = &dataset.dynamic_masks.as_ref().unwrap()[0][f];
+            let mask = view_of(0, f).dynamic_mask.as_ref().expect("masks");
             for y in 0..h {
                 for x in 0..w {
                     let v = if mask[y * w + x] { 1.0 } else { 0.0 };

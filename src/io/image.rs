@@ -3,7 +3,7 @@
 use std::path::Path;
 
 /// An RGB image with `f32` channels in [0, 1], row-major, pixel (x, y) at `data[y * width + x]`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Image {
     pub width: usize,
     pub height: usize,
@@ -38,6 +38,24 @@ impl Image {
             height,
             data: vec![color; width * height],
         }
+    }
+
+    /// Converts an 8-bit RGB image to `f32` in [0, 1].
+    pub fn from_rgb8(rgb: &image::RgbImage) -> Self {
+        let mut out = Self::filled(0, 0, [0.0; 3]);
+        out.copy_from_rgb8(rgb);
+        out
+    }
+
+    /// Overwrites `self` with an 8-bit RGB image, reusing the allocation.
+    pub fn copy_from_rgb8(&mut self, rgb: &image::RgbImage) {
+        self.width = rgb.width() as usize;
+        self.height = rgb.height() as usize;
+        self.data.clear();
+        self.data.extend(
+            rgb.pixels()
+                .map(|p| p.0.map(|c| c as f32 * (1.0 / 255.0))),
+        );
     }
 
     /// Pixel at (x, y).

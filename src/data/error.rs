@@ -1,0 +1,117 @@
+//! Errors of the dataset readers: each names the file and what was wrong in it.
+
+use std::path::{Path, PathBuf};
+
+/// A dataset could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    /// The file or folder could not be opened or read.
+    #[error("cannot read {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// The file is not valid in its format (JSON syntax, binary layout, ...).
+    #[error("{}: {message}", path.display())]
+    Format { path: PathBuf, message: String },
+    /// A field is missing or has the wrong type, shape or value.
+    #[error("{}: field `{field}`: {message}", path.display())]
+    Field {
+        path: PathBuf,
+        field: String,
+        message: String,
+    },
+    /// An image or mask could not be decoded.
+    #[error("cannot decode image {}: {message}", path.display())]
+    Image { path: PathBuf, message: String },
+    /// An image or mask does not have the size its camera says.
+    #[error("{}: image is {found_width}×{found_height} px, but its camera is {width}×{height}", path.display())]
+    Size {
+        path: PathBuf,
+        width: u32,
+        height: u32,
+        found_width: u32,
+        found_height: u32,
+    },
+    /// The dataset as a whole is unusable (no training views, ...).
+    #[error("{}: {message}", path.display())]
+    Dataset { path: PathBuf, message: String },
+}
+
+impl DataError {
+    pub fn io(path: &Path, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+
+    pub fn format(path: &Path, message: impl Into<String>) -> Self {
+        Self::Format {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
+    }
+
+    pub fn field(path: &Path, field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self::Field {
+            path: path.to_path_buf(),
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    pub fn dataset(path: &Path, message: impl Into<String>) -> Self {
+        Self::Dataset {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Reads an RGB image (PNG/JPEG; alpha dropped) and checks its size when one is expected.
+pub fn read_rgb8(path: &Path, expected: Option<(u32, u32)>) -> Result<image::RgbImage, DataError> {
+    let img = open_image(path)?.to_rgb8();
+    check_size(path, img.dimensions(), expected)?;
+    Ok(img)
+}
+
+/// Reads a mask image (any format; a pixel is set where its first channel is non-zero) and
+/// checks its size when one is expected.
+pub fn read_mask(path: &Path, expected: Option<(u32, u32)>) -> Result<Vec<bool>, DataError> {
+    let img = open_image(path)?.to_luma8();
+    check_size(path, img.dimensions(), expected)?;
+    Ok(img.as_raw().iter().map(|&v| v > 0).collect())
+}
+
+/// Opens any image file, with the file named in the error.
+pub fn open_image(path: &Path) -> Result<image::DynamicImage, DataError> {
+    if !path.is_file() {
+        return Err(DataError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        });
+    }
+    image::open(path).map_err(|e| DataError::Image {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+fn check_size(path: &Path, found: (u32, u32), expected: Option<(u32, u32)>) -> Result<(), DataError> {
+    match expected {
+        Some((width, height)) if (width, height) != found => Err(DataError::Size {
+            path: path.to_path_buf(),
+            width,
+            height,
+            found_width: found.0,
+            found_height: found.1,
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Reads a whole text file, with the file named in the error.
+pub fn read_text(path: &Path) -> Result<String, DataError> {
+    std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))
+}
