@@ -12,14 +12,19 @@ use crate::components::{
 use crate::data::init::{
     InitPoint, anchor_frames, nearest_neighbour_scales, random_points_in_view, scene_extent,
 };
-use crate::data::{Camera, Dataset};
+use crate::data::carve::{self, CarveError};
+use crate::data::pointcloud::read_point_cloud;
+use crate::data::{Camera, DataError, Dataset};
 use crate::io::image::Image;
-use crate::metrics::psnr::{masked_psnr, psnr};
+use crate::io::model::Model;
+use crate::metrics::eval::{ViewScores, mean, score_view};
+use crate::metrics::lpips::{Lpips, LpipsError};
+use crate::metrics::psnr::psnr;
 use crate::model::deform::{init_temporal_raw, logit};
 use crate::model::sh::rgb_to_sh_dc;
 use crate::raster::RenderOutput;
 use crate::resources::*;
-use crate::scene::SceneConfig;
+use crate::scene::{InitMethod, SceneConfig};
 use crate::systems::{render_schedule, training_schedule};
 
 /// Makes bevy's compute task pool (used by `par_iter_mut`) once per process.
@@ -55,15 +60,22 @@ pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dat
     world.insert_resource(LossImage::default());
 }
 
-/// Spawns the initial Gaussians: random points in the common view volume at every anchor frame.
-pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> usize {
+/// The initial Gaussians could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum InitError {
+    #[error("initialisation: {0}")]
+    Carve(#[from] CarveError),
+    #[error("initialisation: {0}")]
+    PointCloud(#[from] DataError),
+    #[error("initialisation: no points for anchor frame {frame}")]
+    Empty { frame: usize },
+}
+
+/// Spawns the initial Gaussians: the points of `scene.init.method` at every anchor frame.
+/// Returns how many were spawned.
+pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result<usize, InitError> {
     let settings = world.resource::<Settings>().clone();
     let dataset = world.resource::<TrainingViews>().0.clone();
-    let train_cameras: Vec<Camera> = dataset
-        .train_cameras()
-        .iter()
-        .map(|&c| dataset.cameras[c])
-        .collect();
     let init = &scene.init;
     let temporal_scale = init_temporal_raw(
         settings.opacity,
@@ -71,15 +83,58 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> usize 
         dataset.frame_count,
         &settings.warp,
     );
+    let file_points = match &init.method {
+        InitMethod::PointCloud(path) => Some(read_point_cloud(std::path::Path::new(path))?),
+        _ => None,
+    };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(scene.train.seed ^ 0x5eed);
     let mut spawned = 0;
     for frame in anchor_frames(dataset.frame_count, init.anchor_spacing) {
-        let points = random_points_in_view(&train_cameras, init.points_per_anchor, &mut rng);
-        let center = dataset.frame_time(frame);
+        let points = match &file_points {
+            Some(points) => points.clone(),
+            None => anchor_points(&dataset, frame, scene, &mut rng)?,
+        };
+        if points.is_empty() {
+            return Err(InitError::Empty { frame });
+        }
         spawned += points.len();
-        spawn_points(world, &points, center, temporal_scale, init.opacity);
+        spawn_points(world, &points, dataset.frame_time(frame), temporal_scale, init.opacity);
     }
-    spawned
+    Ok(spawned)
+}
+
+/// The initial points of one anchor frame by the scene's method (not a point-cloud file).
+fn anchor_points(
+    dataset: &Dataset,
+    frame: usize,
+    scene: &SceneConfig,
+    rng: &mut rand_chacha::ChaCha8Rng,
+) -> Result<Vec<InitPoint>, InitError> {
+    let init = &scene.init;
+    let count = init.points_per_anchor;
+    let random = |rng: &mut rand_chacha::ChaCha8Rng| {
+        let cameras: Vec<Camera> = dataset
+            .train_cameras()
+            .iter()
+            .map(|&c| dataset.cameras[c])
+            .collect();
+        random_points_in_view(&cameras, count, rng)
+    };
+    match init.method {
+        InitMethod::Random => Ok(random(rng)),
+        InitMethod::Carve => Ok(carve::initial_points(dataset, frame, count, &init.carve, rng)?),
+        InitMethod::Auto if carve::has_masks(dataset, frame) => {
+            match carve::initial_points(dataset, frame, count, &init.carve, rng) {
+                Ok(points) => Ok(points),
+                Err(error) => {
+                    tracing::warn!("anchor frame {frame}: {error}; using random points instead");
+                    Ok(random(rng))
+                }
+            }
+        }
+        InitMethod::Auto => Ok(dataset.points.clone().unwrap_or_else(|| random(rng))),
+        InitMethod::PointCloud(_) => unreachable!("point-cloud files are read once by the caller"),
+    }
 }
 
 /// Spawns one Gaussian per point at temporal centre `center`.
@@ -126,14 +181,18 @@ pub fn spawn_points(
     world.spawn_batch(bundles);
 }
 
-/// Metrics of one held-out view.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ViewMetrics {
-    pub camera: usize,
-    pub frame: usize,
-    pub psnr: f32,
-    /// PSNR over the dynamic pixels (None where the mask is empty or absent).
-    pub masked_psnr: Option<f32>,
+/// The scores of every held-out view and the time spent rendering them (metrics excluded).
+#[derive(Clone, Debug, Default)]
+pub struct Evaluation {
+    pub scores: Vec<ViewScores>,
+    pub render_seconds: f32,
+}
+
+impl Evaluation {
+    /// Rendering speed in frames per second (rendering only).
+    pub fn render_fps(&self) -> f32 {
+        self.scores.len() as f32 / self.render_seconds.max(1e-9)
+    }
 }
 
 /// A training run over one world: the schedules and the dataset.
@@ -144,11 +203,35 @@ pub struct Trainer {
 }
 
 impl Trainer {
-    /// Builds a world from `scene` and `dataset` and spawns the initial Gaussians.
-    pub fn new(scene: &SceneConfig, dataset: Arc<Dataset>) -> Self {
+    /// Builds a world from `scene` and `dataset` and spawns the initial Gaussians; an
+    /// initialisation that cannot run (a missing point-cloud file, masks that carve nothing
+    /// with `Carve`) is an error.
+    pub fn try_new(scene: &SceneConfig, dataset: Arc<Dataset>) -> Result<Self, InitError> {
         let mut world = World::new();
         insert_resources(&mut world, scene, dataset);
-        spawn_initial_gaussians(&mut world, scene);
+        spawn_initial_gaussians(&mut world, scene)?;
+        Ok(Self::with_world(world))
+    }
+
+    /// [`Trainer::try_new`] for scenes known to initialise (built-in scenes, tests).
+    ///
+    /// # Panics
+    /// When the initialisation fails.
+    pub fn new(scene: &SceneConfig, dataset: Arc<Dataset>) -> Self {
+        Self::try_new(scene, dataset).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// Builds a world from `scene` and `dataset` holding the Gaussians of a trained `model`
+    /// (for evaluation, rendering, or training on from them).
+    pub fn from_model(scene: &SceneConfig, dataset: Arc<Dataset>, model: &Model) -> Self {
+        let mut world = World::new();
+        insert_resources(&mut world, scene, dataset);
+        model.spawn_into(&mut world);
+        world.resource_mut::<TrainState>().sh_degree = model.sh_degree;
+        Self::with_world(world)
+    }
+
+    fn with_world(world: World) -> Self {
         Self {
             world,
             train: training_schedule(),
@@ -184,37 +267,58 @@ impl Trainer {
         self.world.resource::<SplatBuffers>().render.clone()
     }
 
-    /// Renders every held-out view and compares it with its ground truth.
-    /// `on_view` sees each render next to its ground truth (for saving images).
+    /// Renders every held-out view and scores it against its ground truth: PSNR and SSIM
+    /// always, LPIPS when `lpips` is given, M-PSNR / M-SSIM where `masks` (one per held-out
+    /// view, in `dataset.test` order; empty = none) has a mask. `on_view` sees each score with
+    /// the render and the ground truth (for saving images and progress).
     pub fn evaluate(
         &mut self,
-        mut on_view: impl FnMut(&ViewMetrics, &Image, &Image),
-    ) -> Vec<ViewMetrics> {
+        lpips: Option<&Lpips>,
+        masks: &[Option<Vec<bool>>],
+        mut on_view: impl FnMut(&ViewScores, &Image, &Image),
+    ) -> Result<Evaluation, LpipsError> {
         let dataset = self.world.resource::<TrainingViews>().0.clone();
-        let mut metrics = Vec::with_capacity(dataset.test.len());
-        for view in &dataset.test {
+        let mut scores = Vec::with_capacity(dataset.test.len());
+        let mut gt = Image::default();
+        let mut render_seconds = 0.0;
+        for (index, view) in dataset.test.iter().enumerate() {
+            let start = std::time::Instant::now();
             let out = self.render(&dataset.cameras[view.camera], view.time);
-            let gt = view.to_image();
-            let result = ViewMetrics {
-                camera: view.camera,
-                frame: view.frame,
-                psnr: psnr(&out.image, &gt),
-                masked_psnr: view
-                    .dynamic_mask
-                    .as_ref()
-                    .and_then(|m| masked_psnr(&out.image, &gt, m)),
-            };
-            on_view(&result, &out.image, &gt);
-            metrics.push(result);
+            render_seconds += start.elapsed().as_secs_f32();
+            view.copy_image_into(&mut gt);
+            let mask = masks
+                .get(index)
+                .and_then(Option::as_ref)
+                .or(view.dynamic_mask.as_ref());
+            let score = score_view(view, &out.image, &gt, mask.map(Vec::as_slice), lpips)?;
+            on_view(&score, &out.image, &gt);
+            scores.push(score);
         }
-        metrics
+        Ok(Evaluation {
+            scores,
+            render_seconds,
+        })
     }
-}
 
-/// Mean of the finite values (None when there are none).
-pub fn mean(values: impl Iterator<Item = f32>) -> Option<f32> {
-    let (sum, n) = values
-        .filter(|v| v.is_finite())
-        .fold((0.0f64, 0usize), |(s, n), v| (s + v as f64, n + 1));
-    (n > 0).then(|| (sum / n as f64) as f32)
+    /// Mean PSNR over the held-out views (a quick check during training).
+    pub fn heldout_psnr(&mut self) -> Option<f32> {
+        let dataset = self.world.resource::<TrainingViews>().0.clone();
+        let mut gt = Image::default();
+        let values: Vec<f32> = dataset
+            .test
+            .iter()
+            .map(|view| {
+                let out = self.render(&dataset.cameras[view.camera], view.time);
+                view.copy_image_into(&mut gt);
+                psnr(&out.image, &gt)
+            })
+            .collect();
+        mean(values.into_iter())
+    }
+
+    /// The trained Gaussians and the SH degree reached.
+    pub fn model(&mut self) -> Model {
+        let sh_degree = self.state().sh_degree;
+        Model::from_world(&mut self.world, sh_degree)
+    }
 }

@@ -126,6 +126,19 @@ impl Dataset {
     }
 }
 
+/// Reads (or, for a synthetic scene, renders) the dataset a scene file names.
+pub fn load(source: &crate::scene::DataSource) -> Result<Dataset, DataError> {
+    use crate::scene::DataSource;
+    match source {
+        DataSource::Synthetic(scene) => scene.build().map_err(|message| {
+            DataError::dataset(std::path::Path::new("synthetic scene"), message)
+        }),
+        DataSource::Panoptic(source) => panoptic::load(source),
+        DataSource::DNerf(source) => dnerf::load(source),
+        DataSource::N3dv(source) => n3dv::load(source),
+    }
+}
+
 /// Normalised time of `frame` in a `frame_count`-frame sequence: `frame / (T − 1)`.
 pub fn frame_time(frame: usize, frame_count: usize) -> f32 {
     if frame_count <= 1 {

@@ -1,1 +1,228 @@
-//! (being written)
+//! Initial point clouds from files (PLY, COLMAP `points3D`) and PLY export.
+//!
+//! Accepted inputs, by extension:
+//! - `.ply`: ascii, binary little- or big-endian; element `vertex` with `x`, `y`, `z` (any
+//!   numeric type) and optionally `red`, `green`, `blue` (integers are scaled by their type's
+//!   maximum: uchar /255, ushort /65535; floats are taken as 0–1). Points without colour
+//!   get 0.5 grey. Other elements (faces, ...) and other vertex properties are skipped.
+//! - `.txt` / `.bin`: COLMAP `points3D` (see [`super::colmap::read_points3d`]).
+//!
+//! NumPy `.npz`/`.npy` clouds are not read: their array names are not standardised, so a
+//! guess would risk a silently wrong cloud. Convert them to PLY.
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use ply_rs_bw::parser::{Parser, Reader};
+use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult};
+
+use super::DataError;
+use super::colmap;
+use super::init::InitPoint;
+
+/// Colour given to points of a cloud that has none.
+pub const DEFAULT_GREY: [f32; 3] = [0.5, 0.5, 0.5];
+
+/// Reads a point cloud, choosing the reader by the file's extension.
+pub fn read_point_cloud(path: &Path) -> Result<Vec<InitPoint>, DataError> {
+    let extension = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match extension.as_deref() {
+        Some("ply") => read_ply(path),
+        Some("txt") | Some("bin") => colmap::read_points3d(path),
+        Some("npz") | Some("npy") => Err(DataError::format(
+            path,
+            "NumPy point clouds are not supported (their array names are not standardised); \
+             convert the cloud to PLY with vertex properties x, y, z, red, green, blue",
+        )),
+        _ => Err(DataError::format(
+            path,
+            "unknown point cloud format: expected a .ply file or COLMAP points3D.txt / points3D.bin",
+        )),
+    }
+}
+
+/// One vertex as read from a PLY file; fields not in the file keep their defaults.
+struct PlyVertex {
+    position: [f32; 3],
+    color: [f32; 3],
+}
+
+impl PropertyAccess for PlyVertex {
+    fn new() -> Self {
+        Self {
+            position: [0.0; 3],
+            color: DEFAULT_GREY,
+        }
+    }
+
+    fn set_property(&mut self, name: &str, property: Property) -> PropertyAccessResult {
+        let (slot, value) = match name {
+            "x" => (&mut self.position[0], property.to_f32_lossy()),
+            "y" => (&mut self.position[1], property.to_f32_lossy()),
+            "z" => (&mut self.position[2], property.to_f32_lossy()),
+            "red" => (&mut self.color[0], color_component(&property)),
+            "green" => (&mut self.color[1], color_component(&property)),
+            "blue" => (&mut self.color[2], color_component(&property)),
+            _ => return PropertyAccessResult::Ignored,
+        };
+        match value {
+            Some(v) => {
+                *slot = v;
+                PropertyAccessResult::Set
+            }
+            None => PropertyAccessResult::UnsupportedType,
+        }
+    }
+}
+
+/// A colour channel in [0, 1]: unsigned integers over their type's range, floats as they are.
+fn color_component(property: &Property) -> Option<f32> {
+    match *property {
+        Property::UChar(v) => Some(f32::from(v) / 255.0),
+        Property::UShort(v) => Some(f32::from(v) / 65535.0),
+        Property::Float(v) => Some(v),
+        Property::Double(v) => Some(v as f32),
+        // Signed or 32-bit integer colours are unusual; read them on the 8-bit scale.
+        ref other => other.to_f32_lossy().map(|v| v / 255.0),
+    }
+}
+
+/// Any element other than `vertex`: parsed (to move past it) and dropped.
+struct SkippedElement;
+
+impl PropertyAccess for SkippedElement {
+    fn new() -> Self {
+        Self
+    }
+}
+
+/// Reads the `vertex` element of a PLY file.
+fn read_ply(path: &Path) -> Result<Vec<InitPoint>, DataError> {
+    let file = File::open(path).map_err(|e| DataError::io(path, e))?;
+    let mut reader = Reader::new(BufReader::new(file));
+    let vertex_parser = Parser::<PlyVertex>::new();
+    let header = vertex_parser
+        .read_header(&mut reader)
+        .map_err(|e| DataError::format(path, format!("invalid PLY header: {e}")))?;
+    let Some(vertex_def) = header.elements.get("vertex") else {
+        let found: Vec<&str> = header.elements.keys().map(String::as_str).collect();
+        return Err(DataError::format(
+            path,
+            format!("PLY has no `vertex` element (elements found: {found:?})"),
+        ));
+    };
+    for axis in ["x", "y", "z"] {
+        if !vertex_def.properties.contains_key(axis) {
+            return Err(DataError::field(
+                path,
+                format!("vertex.{axis}"),
+                "missing: a point cloud needs vertex properties x, y and z",
+            ));
+        }
+    }
+    let color_channels = ["red", "green", "blue"]
+        .iter()
+        .filter(|c| vertex_def.properties.contains_key(**c))
+        .count();
+    if color_channels != 0 && color_channels != 3 {
+        return Err(DataError::field(
+            path,
+            "vertex.red/green/blue",
+            "only some colour channels are present: give all three or none",
+        ));
+    }
+
+    // Elements are stored in header order: skip the ones before `vertex`.
+    let mut vertices = Vec::new();
+    for (name, element_def) in &header.elements {
+        let body_error = |e: ply_rs_bw::parser::ParseError| {
+            DataError::format(
+                path,
+                format!(
+                    "truncated or malformed PLY body in element `{name}` ({} declared): {e}",
+                    element_def.count
+                ),
+            )
+        };
+        if name == "vertex" {
+            vertices = vertex_parser
+                .read_payload_for_element(&mut reader, element_def, &header)
+                .map_err(body_error)?;
+            break;
+        }
+        Parser::<SkippedElement>::new()
+            .read_payload_for_element(&mut reader, element_def, &header)
+            .map_err(body_error)?;
+    }
+
+    vertices
+        .into_iter()
+        .enumerate()
+        .map(|(index, vertex)| {
+            let position = Vec3::from_array(vertex.position);
+            if !position.is_finite() {
+                return Err(DataError::format(
+                    path,
+                    format!("vertex {index} has a non-finite position {position}"),
+                ));
+            }
+            Ok(InitPoint {
+                position,
+                color: vertex.color,
+            })
+        })
+        .collect()
+}
+
+/// Writes `points` as a binary little-endian PLY (float x, y, z; uchar red, green, blue).
+///
+/// The file is written under a temporary name next to `path` and renamed into place, so a
+/// crash or a full disk never leaves a half-written cloud where a reader expects a whole one.
+pub fn write_point_cloud_ply(path: &Path, points: &[InitPoint]) -> Result<(), DataError> {
+    let temp = temp_path_beside(path);
+    let result = write_ply_body(&temp, points)
+        .and_then(|()| std::fs::rename(&temp, path).map_err(|e| DataError::io(path, e)));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    result
+}
+
+fn temp_path_beside(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "points.ply".to_owned());
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+fn write_ply_body(temp: &Path, points: &[InitPoint]) -> Result<(), DataError> {
+    let io_error = |e| DataError::io(temp, e);
+    let file = File::create(temp).map_err(io_error)?;
+    let mut out = BufWriter::new(file);
+    write!(
+        out,
+        "ply\nformat binary_little_endian 1.0\ncomment written by tadgs\n\
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
+        points.len()
+    )
+    .map_err(io_error)?;
+    for point in points {
+        let mut record = [0u8; 15];
+        for (axis, value) in point.position.to_array().into_iter().enumerate() {
+            record[axis * 4..axis * 4 + 4].copy_from_slice(&value.to_le_bytes());
+        }
+        for (channel, value) in point.color.into_iter().enumerate() {
+            record[12 + channel] = (value.clamp(0.0, 1.0) * 255.0).round() as u8;
+        }
+        out.write_all(&record).map_err(io_error)?;
+    }
+    let file = out.into_inner().map_err(|e| io_error(e.into_error()))?;
+    file.sync_all().map_err(io_error)
+}

@@ -1,3 +1,4 @@
-//! File input and output: images (more formats join here: PLY, checkpoints, video).
+//! File input and output: images and trained models (more formats join here: PLY, video).
 
 pub mod image;
+pub mod model;

@@ -3,6 +3,7 @@
 //! * [`psnr`]: mean squared error and PSNR (optionally restricted to a pixel mask).
 //! * [`ssim`]: structural similarity exactly as in the 3DGS / mip-NeRF evaluation code
 //!   (11×11 Gaussian window, σ = 1.5, zero padding), with its analytic gradient.
+//! * [`eval`]: the evaluation protocol (PSNR, SSIM, LPIPS, M-PSNR, M-SSIM) and dynamic masks.
 //! * [`loss`]: the training loss `(1 − λ)·L1 + λ·(1 − SSIM)` and its gradient w.r.t. the render.
 //!
 //! All functions take [`Image`]s with channels in [0, 1] and panic with a clear message when
@@ -10,6 +11,7 @@
 
 use crate::io::image::Image;
 
+pub mod eval;
 pub mod flow;
 pub mod loss;
 pub mod lpips;

@@ -373,10 +373,48 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
     nonzero("init.points_per_anchor", i.points_per_anchor)?;
     in_range("init.opacity", i.opacity, 0.0, false, 1.0, false)?;
     positive("init.lifespan_half_frames", i.lifespan_half_frames)?;
+    if let Err(error) = i.carve.validate() {
+        return fail("init.carve", error.to_string());
+    }
+    if let crate::scene::InitMethod::PointCloud(path) = &i.method
+        && path.is_empty()
+    {
+        return fail("init.method", "PointCloud needs a file path");
+    }
 
     // data
     match &config.data {
         DataSource::Synthetic(scene) => validate_synthetic(scene)?,
+        DataSource::Panoptic(p) => {
+            nonzero("data.frame_stride", p.frame_stride)?;
+            nonzero("data.downscale", p.downscale)?;
+            if p.frames == Some(0) {
+                return fail("data.frames", "0 frames: give at least 1, or None for all");
+            }
+        }
+        DataSource::N3dv(n) => {
+            nonzero("data.downscale", n.downscale)?;
+            if n.frames == Some(0) {
+                return fail("data.frames", "0 frames: give at least 1, or None for all");
+            }
+            if n.test_cameras.is_empty() {
+                return fail("data.test_cameras", "hold out at least one camera");
+            }
+        }
+        DataSource::DNerf(d) => {
+            nonzero("data.downscale", d.downscale)?;
+            if !matches!(d.test_split.as_str(), "test" | "val") {
+                return fail(
+                    "data.test_split",
+                    format!("{:?}: expected \"test\" or \"val\"", d.test_split),
+                );
+            }
+            for (i, &c) in d.background.iter().enumerate() {
+                if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
+                    return fail("data.background", format!("channel {i} is {c}, outside [0, 1]"));
+                }
+            }
+        }
     }
     Ok(())
 }

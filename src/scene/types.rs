@@ -4,6 +4,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::data::carve::CarveSettings;
+use crate::data::dnerf::DNerfSource;
+use crate::data::n3dv::N3dvSource;
+use crate::data::panoptic::PanopticSource;
 use crate::data::synthetic::SyntheticScene;
 
 /// One scene file: where the data comes from and how to train on it.
@@ -51,15 +55,42 @@ fn default_output() -> String {
 pub enum DataSource {
     /// Analytic objects rendered by the built-in ray caster (no files needed).
     Synthetic(SyntheticScene),
+    /// A Dynamic3DGaussians / CMU Panoptic capture (train_meta.json, test_meta.json, ims/, seg/).
+    Panoptic(PanopticSource),
+    /// A D-NeRF scene (transforms_{train,val,test}.json with per-image time, RGBA images).
+    DNerf(DNerfSource),
+    /// An N3DV / LLFF multi-view video (poses_bounds.npy + camXX.mp4 or frame folders).
+    N3dv(N3dvSource),
+}
+
+/// Where the initial points of each anchor frame come from.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub enum InitMethod {
+    /// The visual hull of the foreground masks plus photo-consistent background points where
+    /// the training views of the anchor frame have masks (Panoptic `seg/`, D-NeRF alpha);
+    /// otherwise the dataset's own point cloud; otherwise random points. Falls back to random
+    /// points (with a warning) when carving finds nothing.
+    Auto,
+    /// Random points in the cameras' common view volume with random colours.
+    Random,
+    /// Space carving: the visual hull of the masks, or photo-consistency without masks
+    /// (see `init.carve`); an error when nothing survives.
+    Carve,
+    /// A point cloud file (PLY, or COLMAP points3D.txt / .bin), used at every anchor frame.
+    PointCloud(String),
 }
 
 /// How the initial Gaussians are made.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct InitConfig {
+    /// Where the points come from.
+    pub method: InitMethod,
+    /// Settings of the carving initialiser (used by `Auto` and `Carve`).
+    pub carve: CarveSettings,
     /// Anchor (temporal centre) spacing in frames; the last frame is always an anchor.
     pub anchor_spacing: usize,
-    /// Random points per anchor frame in the cameras' common view volume.
+    /// Points per anchor frame (a point-cloud file is used whole).
     pub points_per_anchor: usize,
     /// Initial opacity (SPEC: 0.1).
     pub opacity: f32,
@@ -70,6 +101,8 @@ pub struct InitConfig {
 impl Default for InitConfig {
     fn default() -> Self {
         Self {
+            method: InitMethod::Auto,
+            carve: CarveSettings::default(),
             anchor_spacing: 20,
             points_per_anchor: 2000,
             opacity: 0.1,

@@ -1,0 +1,290 @@
+//! The evaluation protocol: per-view PSNR, SSIM, LPIPS and the masked M-PSNR / M-SSIM over
+//! dynamic pixels, their means, and the dynamic masks themselves.
+//!
+//! Masks come from, in order: the dataset (exact masks of synthetic scenes), PNG files in a
+//! mask folder (written by `tadgs masks` or supplied by the user, named by
+//! [`mask_file_name`]), or dense optical flow between frames `t − 5` and `t` of the same test
+//! camera ([`flow::dynamic_mask`], threshold [`flow::DEFAULT_FLOW_THRESHOLD`] px). Frames
+//! without a mask (0–4, or a camera without earlier frames) are skipped by the masked metrics.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::flow::{self, MASK_FRAME_GAP};
+use super::lpips::{Lpips, LpipsError};
+use super::{masked_psnr, masked_ssim, psnr, ssim};
+use crate::data::{Dataset, View};
+use crate::io::image::{Image, ImageError};
+
+/// The metrics of one held-out view.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ViewScores {
+    pub camera: usize,
+    pub frame: usize,
+    pub time: f32,
+    pub psnr: f32,
+    pub ssim: f32,
+    /// LPIPS (AlexNet); None when no LPIPS weights were given.
+    pub lpips: Option<f32>,
+    /// PSNR over the dynamic pixels; None where the view has no mask or an empty one.
+    pub masked_psnr: Option<f32>,
+    /// Mean SSIM map over the dynamic pixels.
+    pub masked_ssim: Option<f32>,
+    /// Fraction of pixels flagged dynamic (None without a mask).
+    pub dynamic_fraction: Option<f32>,
+}
+
+/// Means over the views (masked means over the views that have a non-empty mask).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ScoreSummary {
+    pub views: usize,
+    pub psnr: Option<f32>,
+    pub ssim: Option<f32>,
+    pub lpips: Option<f32>,
+    pub masked_views: usize,
+    pub masked_psnr: Option<f32>,
+    pub masked_ssim: Option<f32>,
+}
+
+impl ScoreSummary {
+    pub fn of(scores: &[ViewScores]) -> Self {
+        Self {
+            views: scores.len(),
+            psnr: mean(scores.iter().map(|s| s.psnr)),
+            ssim: mean(scores.iter().map(|s| s.ssim)),
+            lpips: mean(scores.iter().filter_map(|s| s.lpips)),
+            masked_views: scores.iter().filter(|s| s.masked_psnr.is_some()).count(),
+            masked_psnr: mean(scores.iter().filter_map(|s| s.masked_psnr)),
+            masked_ssim: mean(scores.iter().filter_map(|s| s.masked_ssim)),
+        }
+    }
+}
+
+/// Mean of the finite values (None when there are none).
+pub fn mean(values: impl Iterator<Item = f32>) -> Option<f32> {
+    let (sum, n) = values
+        .filter(|v| v.is_finite())
+        .fold((0.0f64, 0usize), |(s, n), v| (s + v as f64, n + 1));
+    (n > 0).then(|| (sum / n as f64) as f32)
+}
+
+/// Scores one render against its ground truth.
+pub fn score_view(
+    view: &View,
+    render: &Image,
+    gt: &Image,
+    mask: Option<&[bool]>,
+    lpips: Option<&Lpips>,
+) -> Result<ViewScores, LpipsError> {
+    Ok(ViewScores {
+        camera: view.camera,
+        frame: view.frame,
+        time: view.time,
+        psnr: psnr(render, gt),
+        ssim: ssim(render, gt),
+        lpips: lpips.map(|net| net.distance(render, gt)).transpose()?,
+        masked_psnr: mask.and_then(|m| masked_psnr(render, gt, m)),
+        masked_ssim: mask.and_then(|m| masked_ssim(render, gt, m)),
+        dynamic_fraction: mask
+            .map(|m| m.iter().filter(|&&d| d).count() as f32 / m.len().max(1) as f32),
+    })
+}
+
+/// File name of the mask of `camera` at `frame` inside a mask folder.
+pub fn mask_file_name(camera: usize, frame: usize) -> String {
+    format!("cam{camera:02}_frame{frame:04}.png")
+}
+
+/// The flow mask of a held-out view: flow between frame `t − 5` and `t` of the same camera.
+/// None for the first five frames (or when the earlier frame is not among the test views).
+pub fn flow_mask(dataset: &Dataset, view: &View, threshold: f32) -> Option<Vec<bool>> {
+    let earlier = dataset.test_view(view.camera, view.frame.checked_sub(MASK_FRAME_GAP)?)?;
+    Some(flow::dynamic_mask(
+        &earlier.to_image(),
+        &view.to_image(),
+        threshold,
+    ))
+}
+
+/// Where the dynamic masks of the held-out views come from.
+#[derive(Clone, Debug, Default)]
+pub struct MaskSource {
+    /// Folder of mask PNGs ([`mask_file_name`]); read when a file exists there.
+    pub folder: Option<PathBuf>,
+    /// Compute missing masks by optical flow (and write them to `folder` when given).
+    pub compute: bool,
+    /// Flow magnitude threshold in pixels.
+    pub threshold: f32,
+}
+
+/// A mask folder could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum MaskError {
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    #[error("mask {}: {width}×{height} px, but the view is {expected_width}×{expected_height}", path.display())]
+    Size {
+        path: PathBuf,
+        width: usize,
+        height: usize,
+        expected_width: usize,
+        expected_height: usize,
+    },
+    #[error("cannot create mask folder {}: {source}", path.display())]
+    Folder {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// The dynamic mask of every held-out view (in `dataset.test` order): the dataset's own
+/// (exact) mask, else the mask folder's PNG, else optical flow when [`MaskSource::compute`]
+/// is set. With `compute`, every mask not read from the folder is written there as a PNG.
+/// `progress` is called once per view.
+pub fn dynamic_masks(
+    dataset: &Dataset,
+    source: &MaskSource,
+    mut progress: impl FnMut(),
+) -> Result<Vec<Option<Vec<bool>>>, MaskError> {
+    if let Some(folder) = source.folder.as_ref().filter(|_| source.compute) {
+        std::fs::create_dir_all(folder).map_err(|e| MaskError::Folder {
+            path: folder.clone(),
+            source: e,
+        })?;
+    }
+    let mut masks = Vec::with_capacity(dataset.test.len());
+    for view in &dataset.test {
+        let (width, height) = (view.image.width() as usize, view.image.height() as usize);
+        let file = source
+            .folder
+            .as_ref()
+            .map(|f| f.join(mask_file_name(view.camera, view.frame)));
+        let from_file = file.as_ref().filter(|p| p.is_file() && view.dynamic_mask.is_none());
+        let mask = if let Some(path) = from_file {
+            Some(read_mask_png(path, width, height)?)
+        } else {
+            let mask = match &view.dynamic_mask {
+                Some(mask) => Some(mask.clone()),
+                None if source.compute => flow_mask(dataset, view, source.threshold),
+                None => None,
+            };
+            // Save every mask not read from the folder, so the folder shows what was used.
+            if let (Some(mask), Some(path), true) = (&mask, &file, source.compute) {
+                flow::mask_to_image(mask, width, height).save_png(path)?;
+            }
+            mask
+        };
+        masks.push(mask);
+        progress();
+    }
+    Ok(masks)
+}
+
+fn read_mask_png(path: &Path, width: usize, height: usize) -> Result<Vec<bool>, MaskError> {
+    let image = Image::load(path)?;
+    if (image.width, image.height) != (width, height) {
+        return Err(MaskError::Size {
+            path: path.to_path_buf(),
+            width: image.width,
+            height: image.height,
+            expected_width: width,
+            expected_height: height,
+        });
+    }
+    Ok(flow::mask_from_image(&image))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::Camera;
+
+    fn view_with(image: &Image, frame: usize) -> View {
+        View {
+            camera: 0,
+            frame,
+            time: 0.0,
+            image: image.to_rgb8(),
+            dynamic_mask: None,
+            foreground: None,
+        }
+    }
+
+    /// A perfect render scores infinite PSNR (reported as such), SSIM 1 and masked SSIM 1;
+    /// an empty mask leaves the masked metrics out of the means.
+    #[test]
+    fn identical_images_score_perfectly() {
+        let image = Image {
+            width: 16,
+            height: 12,
+            data: (0..192).map(|i| [(i % 7) as f32 / 7.0, 0.5, 0.2]).collect(),
+        };
+        let view = view_with(&image, 0);
+        let mut mask = vec![false; 192];
+        mask[40] = true;
+        let scores = score_view(&view, &image, &image, Some(&mask), None).unwrap();
+        assert!(scores.psnr.is_infinite());
+        assert!((scores.ssim - 1.0).abs() < 1e-6);
+        assert!((scores.masked_ssim.unwrap() - 1.0).abs() < 1e-6);
+        let empty = score_view(&view, &image, &image, Some(&[false; 192]), None).unwrap();
+        assert_eq!(empty.masked_psnr, None);
+        let summary = ScoreSummary::of(&[scores, empty]);
+        assert_eq!(summary.masked_views, 1);
+        assert_eq!(summary.views, 2);
+    }
+
+    /// Masks are computed from frame t − 5 of the same camera, saved as PNGs, and read back
+    /// identically; frames 0–4 have none.
+    #[test]
+    fn flow_masks_are_cached_in_the_mask_folder() {
+        let (w, h) = (64, 48);
+        let frame_with_square = |x0: usize| Image {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| {
+                    let (x, y) = (i % w, i / w);
+                    let inside = (x0..x0 + 12).contains(&x) && (18..30).contains(&y);
+                    let texture = 0.3 + 0.1 * ((x * 7 + y * 3) % 5) as f32;
+                    if inside { [0.9, 0.2, 0.1] } else { [texture; 3] }
+                })
+                .collect(),
+        };
+        let mut dataset = Dataset {
+            cameras: vec![Camera::look_at(
+                glam::Vec3::new(0.0, 0.0, -3.0),
+                glam::Vec3::ZERO,
+                glam::Vec3::Y,
+                w as u32,
+                h as u32,
+                1.0,
+            )],
+            frame_count: 7,
+            ..Dataset::default()
+        };
+        for frame in 0..7 {
+            dataset
+                .test
+                .push(view_with(&frame_with_square(10 + 3 * frame), frame));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let source = MaskSource {
+            folder: Some(dir.path().join("masks")),
+            compute: true,
+            threshold: flow::DEFAULT_FLOW_THRESHOLD,
+        };
+        let masks = dynamic_masks(&dataset, &source, || {}).unwrap();
+        assert!(masks[..5].iter().all(Option::is_none));
+        let mask = masks[5].as_ref().expect("frame 5 has a mask");
+        // The square at frame 5 spans x 25..37, y 18..30: its centre is dynamic.
+        assert!(mask[24 * w + 31]);
+        assert!(!mask[2 * w + 2]);
+        let cached = MaskSource {
+            compute: false,
+            ..source
+        };
+        let again = dynamic_masks(&dataset, &cached, || {}).unwrap();
+        assert_eq!(masks, again);
+    }
+}
