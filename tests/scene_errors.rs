@@ -443,7 +443,9 @@ fn set_override_sets_nested_fields() {
     assert!(!c.model.tow.enabled);
     set_override(&mut c, "data.width", "32").unwrap();
     set_override(&mut c, "data.objects.0.spin", "1.5").unwrap();
-    let DataSource::Synthetic(scene) = &c.data;
+    let DataSource::Synthetic(scene) = &c.data else {
+        panic!("the demo scene is synthetic");
+    };
     assert_eq!((scene.width, scene.objects[0].spin), (32, 1.5));
 
     // Untouched fields keep their exact values through the RON round trip.
@@ -586,7 +588,9 @@ fn demo_scene_loads_and_takes_overrides() {
         ],
     )
     .unwrap();
-    let DataSource::Synthetic(scene) = &c.data;
+    let DataSource::Synthetic(scene) = &c.data else {
+        panic!("the demo scene is synthetic");
+    };
     assert_eq!(scene.floor.as_ref().map(|f| f.half_size), Some(3.0));
     assert_eq!(scene.objects[1].spin, 0.5);
     assert_eq!(c.train.iterations, 10);
