@@ -745,21 +745,24 @@ fn colmap_text_and_binary_models_agree() {
     );
 }
 
+/// Writes a valid text model to `dir`, replaces its `file` with `contents` and checks that
+/// reading the model fails with an error naming `file` and containing `needles`.
+fn assert_text_model_rejects(dir: &Path, file: &str, contents: &str, needles: &[&str]) {
+    write_text_model(dir);
+    std::fs::write(dir.join(file), contents).unwrap();
+    let error = colmap::read_model(dir).unwrap_err();
+    assert_error_mentions(&error, file, needles);
+}
+
 /// An unknown camera model is an error naming the file and the line (text) or the record
 /// and byte offset (binary).
 #[test]
 fn colmap_rejects_unknown_camera_model() {
     let dir = tempfile::tempdir().unwrap();
-    write_text_model(dir.path());
-    std::fs::write(
-        dir.path().join("cameras.txt"),
-        "# cameras\n1 FANCY_LENS 640 480 500 320 240\n",
-    )
-    .unwrap();
-    let error = colmap::read_model(dir.path()).unwrap_err();
-    assert_error_mentions(
-        &error,
+    assert_text_model_rejects(
+        dir.path(),
         "cameras.txt",
+        "# cameras\n1 FANCY_LENS 640 480 500 320 240\n",
         &["line 2", "unknown camera model `FANCY_LENS`"],
     );
 
@@ -784,16 +787,10 @@ fn colmap_rejects_unknown_camera_model() {
 #[test]
 fn colmap_rejects_wrong_parameter_count() {
     let dir = tempfile::tempdir().unwrap();
-    write_text_model(dir.path());
-    std::fs::write(
-        dir.path().join("cameras.txt"),
-        "1 PINHOLE 640 480 500 320 240\n",
-    )
-    .unwrap();
-    let error = colmap::read_model(dir.path()).unwrap_err();
-    assert_error_mentions(
-        &error,
+    assert_text_model_rejects(
+        dir.path(),
         "cameras.txt",
+        "1 PINHOLE 640 480 500 320 240\n",
         &["line 1", "PINHOLE takes 4 parameters, found 3"],
     );
 }
@@ -802,16 +799,10 @@ fn colmap_rejects_wrong_parameter_count() {
 #[test]
 fn colmap_rejects_fisheye_models() {
     let dir = tempfile::tempdir().unwrap();
-    write_text_model(dir.path());
-    std::fs::write(
-        dir.path().join("cameras.txt"),
-        "1 OPENCV_FISHEYE 640 480 500 500 320 240 0 0 0 0\n",
-    )
-    .unwrap();
-    let error = colmap::read_model(dir.path()).unwrap_err();
-    assert_error_mentions(
-        &error,
+    assert_text_model_rejects(
+        dir.path(),
         "cameras.txt",
+        "1 OPENCV_FISHEYE 640 480 500 500 320 240 0 0 0 0\n",
         &["line 1", "OPENCV_FISHEYE", "image_undistorter"],
     );
 }
@@ -847,12 +838,10 @@ fn colmap_rejects_short_text_line() {
         &["line 3", "expected at least 8 fields", "found 3"],
     );
 
-    write_text_model(dir.path());
-    std::fs::write(dir.path().join("images.txt"), "1 1 0 0 0 0 0 5 1\n\n").unwrap();
-    let error = colmap::read_model(dir.path()).unwrap_err();
-    assert_error_mentions(
-        &error,
+    assert_text_model_rejects(
+        dir.path(),
         "images.txt",
+        "1 1 0 0 0 0 0 5 1\n\n",
         &["line 1", "expected at least 10 fields"],
     );
 }

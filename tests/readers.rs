@@ -267,12 +267,21 @@ fn write_json(path: &Path, value: &Value) {
     std::fs::write(path, serde_json::to_string_pretty(value).unwrap()).unwrap();
 }
 
-fn write_image(path: &Path, width: u32, height: u32, seed: u8) {
+/// Saves a `width × height` image of `pixel(x, y)` at `path`, creating its folder.
+fn save_image<P>(path: &Path, width: u32, height: u32, pixel: impl Fn(u32, u32) -> P)
+where
+    P: image::Pixel<Subpixel = u8> + image::PixelWithColorType,
+{
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-    let img = image::RgbImage::from_fn(width, height, |x, y| {
+    image::ImageBuffer::from_fn(width, height, pixel)
+        .save(path)
+        .unwrap();
+}
+
+fn write_image(path: &Path, width: u32, height: u32, seed: u8) {
+    save_image(path, width, height, |x, y| {
         image::Rgb([seed, x as u8 * 20, y as u8 * 30])
     });
-    img.save(path).unwrap();
 }
 
 /// Writes a valid synthetic Panoptic dataset (train cams 4 and 9, test cam 6, two
@@ -293,11 +302,9 @@ fn synthetic_panoptic() -> tempfile::TempDir {
         }
     }
     for t in 0..STEPS {
-        let path = root.join(format!("seg/4/{t:06}.png"));
-        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        image::GrayImage::from_fn(W, H, |x, _| image::Luma([if x < 2 { 255 } else { 0 }]))
-            .save(path)
-            .unwrap();
+        save_image(&root.join(format!("seg/4/{t:06}.png")), W, H, |x, _| {
+            image::Luma([if x < 2 { 255 } else { 0 }])
+        });
     }
     dir
 }
@@ -564,17 +571,14 @@ fn synthetic_dnerf() -> tempfile::TempDir {
             &root.join(format!("transforms_{split}.json")),
             &transforms(split, times),
         );
-        std::fs::create_dir_all(root.join(split)).unwrap();
         for i in 0..times.len() {
-            image::RgbaImage::from_fn(8, 8, |x, _| {
+            save_image(&root.join(format!("{split}/r_{i:03}.png")), 8, 8, |x, _| {
                 if x < 4 {
                     image::Rgba([255, 0, 0, 255])
                 } else {
                     image::Rgba([0, 0, 255, 0])
                 }
-            })
-            .save(root.join(format!("{split}/r_{i:03}.png")))
-            .unwrap();
+            });
         }
     }
     dir

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::init::{InitPoint, rig_focus};
-use super::{Camera, Dataset};
+use super::{Camera, Dataset, View};
 
 /// Points closer to a camera than this (along its axis) are not seen by it.
 const MIN_DEPTH: f32 = 1e-3;
@@ -66,6 +66,10 @@ pub struct CarveSettings {
     /// Background points are the most photo-consistent of this many candidates per point, which
     /// pulls them towards real surfaces (floor, walls) rather than empty space.
     pub background_oversample: usize,
+    /// A background candidate must be seen by at least this fraction of the masked views (and
+    /// by `min_views`). Lower it where the background is a wall around the rig (a dome with
+    /// the cameras on it), whose points only the cameras opposite can see.
+    pub background_view_fraction: f32,
 }
 
 impl Default for CarveSettings {
@@ -80,6 +84,7 @@ impl Default for CarveSettings {
             region_scale: 1.0,
             occlusion: true,
             background_oversample: 4,
+            background_view_fraction: 0.5,
         }
     }
 }
@@ -103,6 +108,7 @@ impl CarveSettings {
         for (name, value) in [
             ("foreground_fraction", self.foreground_fraction),
             ("surface_preference", self.surface_preference),
+            ("background_view_fraction", self.background_view_fraction),
         ] {
             if !(0.0..=1.0).contains(&value) {
                 return invalid(format!("{name} {value} is outside [0, 1]"));
@@ -494,35 +500,27 @@ impl CarveView<'_> {
 /// Training views at `frame` with a foreground mask of their camera's size (others are skipped
 /// with a warning).
 fn masked_views(dataset: &Dataset, frame: usize) -> Result<Vec<CarveView<'_>>, CarveError> {
-    let at_frame: Vec<_> = dataset.train.iter().filter(|v| v.frame == frame).collect();
-    if at_frame.is_empty() {
-        return Err(CarveError::NoViews { frame });
-    }
-    let views: Vec<CarveView> = at_frame
-        .par_iter()
-        .filter_map(|view| {
-            let mask = view.foreground.as_deref()?;
-            let camera = dataset.cameras.get(view.camera)?;
-            let (w, h) = (camera.width as usize, camera.height as usize);
-            if mask.len() != w * h || view.image.dimensions() != (camera.width, camera.height) {
-                tracing::warn!(
-                    camera = view.camera,
-                    frame,
-                    "mask or image does not match its camera's size; not carving with it"
-                );
-                return None;
-            }
-            let sums = SummedArea::new(w, h, |x, y| [u32::from(mask[y * w + x])]);
-            Some(CarveView {
-                camera,
-                eye: camera.center(),
-                image: &view.image,
-                mask: Some(mask),
-                mask_sums: Some(sums),
-                colour_sums: None,
-            })
+    let views = views_at(dataset, frame, |view, camera| {
+        let mask = view.foreground.as_deref()?;
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        if mask.len() != w * h || view.image.dimensions() != (camera.width, camera.height) {
+            tracing::warn!(
+                camera = view.camera,
+                frame,
+                "mask or image does not match its camera's size; not carving with it"
+            );
+            return None;
+        }
+        let sums = SummedArea::new(w, h, |x, y| [u32::from(mask[y * w + x])]);
+        Some(CarveView {
+            camera,
+            eye: camera.center(),
+            image: &view.image,
+            mask: Some(mask),
+            mask_sums: Some(sums),
+            colour_sums: None,
         })
-        .collect();
+    })?;
     if views.is_empty() {
         return Err(CarveError::NoMasks { frame });
     }
@@ -531,36 +529,66 @@ fn masked_views(dataset: &Dataset, frame: usize) -> Result<Vec<CarveView<'_>>, C
 
 /// All training views at `frame` with colour prefix sums (for photo-consistency).
 fn colour_views(dataset: &Dataset, frame: usize) -> Result<Vec<CarveView<'_>>, CarveError> {
-    let at_frame: Vec<_> = dataset.train.iter().filter(|v| v.frame == frame).collect();
+    views_at(dataset, frame, |view, camera| {
+        if view.image.dimensions() != (camera.width, camera.height) {
+            tracing::warn!(
+                camera = view.camera,
+                frame,
+                "image does not match its camera's size"
+            );
+            return None;
+        }
+        let image = &view.image;
+        let sums = SummedArea::new(camera.width as usize, camera.height as usize, |x, y| {
+            image.get_pixel(x as u32, y as u32).0.map(u32::from)
+        });
+        Some(CarveView {
+            camera,
+            eye: camera.center(),
+            image,
+            mask: None,
+            mask_sums: None,
+            colour_sums: Some(sums),
+        })
+    })
+}
+
+/// The training views at `frame` (with their cameras) that `make` turns into carving views,
+/// built in parallel; `make` returns `None` for a view it cannot use.
+fn views_at<'a>(
+    dataset: &'a Dataset,
+    frame: usize,
+    make: impl Fn(&'a View, &'a Camera) -> Option<CarveView<'a>> + Sync,
+) -> Result<Vec<CarveView<'a>>, CarveError> {
+    let at_frame: Vec<&View> = dataset.train.iter().filter(|v| v.frame == frame).collect();
     if at_frame.is_empty() {
         return Err(CarveError::NoViews { frame });
     }
     Ok(at_frame
         .par_iter()
-        .filter_map(|view| {
-            let camera = dataset.cameras.get(view.camera)?;
-            if view.image.dimensions() != (camera.width, camera.height) {
-                tracing::warn!(
-                    camera = view.camera,
-                    frame,
-                    "image does not match its camera's size"
-                );
-                return None;
-            }
-            let image = &view.image;
-            let sums = SummedArea::new(camera.width as usize, camera.height as usize, |x, y| {
-                image.get_pixel(x as u32, y as u32).0.map(u32::from)
-            });
-            Some(CarveView {
-                camera,
-                eye: camera.center(),
-                image,
-                mask: None,
-                mask_sums: None,
-                colour_sums: Some(sums),
-            })
-        })
+        .filter_map(|view| make(view, dataset.cameras.get(view.camera)?))
         .collect())
+}
+
+/// What the public entry points share: validates `settings`, collects the views of `frame`
+/// with `collect` ([`masked_views`] or [`colour_views`]) and checks that at least `min_views`
+/// of them are usable.
+fn checked_views<'a>(
+    dataset: &'a Dataset,
+    frame: usize,
+    settings: &CarveSettings,
+    collect: fn(&'a Dataset, usize) -> Result<Vec<CarveView<'a>>, CarveError>,
+) -> Result<Vec<CarveView<'a>>, CarveError> {
+    settings.validate()?;
+    let views = collect(dataset, frame)?;
+    if views.len() < settings.min_views {
+        return Err(CarveError::TooFewViews {
+            frame,
+            found: views.len(),
+            needed: settings.min_views,
+        });
+    }
+    Ok(views)
 }
 
 /// The cube the cameras look at: around the rig's focus, half-size `region_scale` × the mean
@@ -572,21 +600,6 @@ fn search_region(views: &[CarveView], region_scale: f32) -> (Vec3, Vec3) {
         views.iter().map(|v| v.eye.distance(focus)).sum::<f32>() / views.len().max(1) as f32;
     let half = Vec3::splat(region_scale * mean_distance.max(1e-3));
     (focus - half, focus + half)
-}
-
-fn check_view_count(
-    frame: usize,
-    views: &[CarveView],
-    settings: &CarveSettings,
-) -> Result<(), CarveError> {
-    if views.len() < settings.min_views {
-        return Err(CarveError::TooFewViews {
-            frame,
-            found: views.len(),
-            needed: settings.min_views,
-        });
-    }
-    Ok(())
 }
 
 /// Whether a voxel of bounding-sphere `radius` at `centre` belongs to the visual hull (with
@@ -628,8 +641,7 @@ pub fn visual_hull(
     frame: usize,
     settings: &CarveSettings,
 ) -> Result<VoxelGrid, CarveError> {
-    settings.validate()?;
-    let views = masked_views(dataset, frame)?;
+    let views = checked_views(dataset, frame, settings, masked_views)?;
     visual_hull_of(&views, frame, settings)
 }
 
@@ -638,7 +650,6 @@ fn visual_hull_of(
     frame: usize,
     settings: &CarveSettings,
 ) -> Result<VoxelGrid, CarveError> {
-    check_view_count(frame, views, settings)?;
     let start = Instant::now();
     let (region_min, region_max) = search_region(views, settings.region_scale);
     let carve = |min: Vec3, max: Vec3, resolution: u32| {
@@ -816,8 +827,7 @@ pub fn carve_from_masks(
     settings: &CarveSettings,
     rng: &mut impl Rng,
 ) -> Result<Vec<InitPoint>, CarveError> {
-    settings.validate()?;
-    let views = masked_views(dataset, frame)?;
+    let views = checked_views(dataset, frame, settings, masked_views)?;
     let grid = visual_hull_of(&views, frame, settings)?;
     Ok(sample_hull(&views, &grid, count, settings, rng))
 }
@@ -905,9 +915,7 @@ pub fn background_points(
     settings: &CarveSettings,
     rng: &mut impl Rng,
 ) -> Result<Vec<InitPoint>, CarveError> {
-    settings.validate()?;
-    let views = masked_views(dataset, frame)?;
-    check_view_count(frame, &views, settings)?;
+    let views = checked_views(dataset, frame, settings, masked_views)?;
     Ok(background_points_of(&views, count, settings, rng))
 }
 
@@ -920,7 +928,8 @@ fn background_points_of(
     if count == 0 {
         return Vec::new();
     }
-    let needed = settings.min_views.max(views.len().div_ceil(2));
+    let fraction_needed = (settings.background_view_fraction * views.len() as f32).ceil() as usize;
+    let needed = settings.min_views.max(fraction_needed);
     let Some((lo, hi)) = common_view_bounds(views, settings.region_scale, needed) else {
         tracing::warn!(
             needed,
@@ -999,8 +1008,7 @@ pub fn photo_consistent_hull(
     frame: usize,
     settings: &CarveSettings,
 ) -> Result<VoxelGrid, CarveError> {
-    settings.validate()?;
-    let views = colour_views(dataset, frame)?;
+    let views = checked_views(dataset, frame, settings, colour_views)?;
     photo_consistent_hull_of(&views, frame, settings)
 }
 
@@ -1009,7 +1017,6 @@ fn photo_consistent_hull_of(
     frame: usize,
     settings: &CarveSettings,
 ) -> Result<VoxelGrid, CarveError> {
-    check_view_count(frame, views, settings)?;
     let start = Instant::now();
     let (min, max) = search_region(views, settings.region_scale);
     let radius = 0.5 * VoxelGrid::covering(min, max, settings.resolution).voxel_size;
@@ -1045,8 +1052,7 @@ pub fn carve_photo_consistent(
     settings: &CarveSettings,
     rng: &mut impl Rng,
 ) -> Result<Vec<InitPoint>, CarveError> {
-    settings.validate()?;
-    let views = colour_views(dataset, frame)?;
+    let views = checked_views(dataset, frame, settings, colour_views)?;
     let grid = photo_consistent_hull_of(&views, frame, settings)?;
     let positions = grid.sample_points(count, settings.surface_preference, rng);
     Ok(positions
@@ -1094,7 +1100,7 @@ pub fn initial_points(
         tracing::info!(frame, "no foreground masks; carving by photo-consistency");
         return carve_photo_consistent(dataset, frame, count, settings, rng);
     }
-    let views = masked_views(dataset, frame)?;
+    let views = checked_views(dataset, frame, settings, masked_views)?;
     let grid = visual_hull_of(&views, frame, settings)?;
     let foreground_count =
         ((count as f32 * settings.foreground_fraction).round() as usize).min(count);

@@ -582,13 +582,29 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
     std::fs::read(path).map_err(|e| DataError::io(path, e))
 }
 
-fn read_cameras_bin(path: &Path) -> Result<Vec<ColmapCamera>, DataError> {
+/// Reads a COLMAP binary file of `record_kind` records: a record count, then the records,
+/// parsed one at a time by `read` (given the cursor at the record's start and its index), then
+/// nothing more. `min_record_size` bounds the preallocation by what the file can hold.
+fn read_records<T>(
+    path: &Path,
+    record_kind: &'static str,
+    min_record_size: usize,
+    mut read: impl FnMut(&mut BinaryCursor, u64) -> Result<T, DataError>,
+) -> Result<Vec<T>, DataError> {
     let bytes = read_bytes(path)?;
-    let mut cursor = BinaryCursor::new(path, &bytes, "camera");
-    let capacity = cursor.record_count(4 + 4 + 8 + 8 + 3 * 8)?;
-    let mut cameras = Vec::with_capacity(capacity);
+    let mut cursor = BinaryCursor::new(path, &bytes, record_kind);
+    let capacity = cursor.record_count(min_record_size)?;
+    let mut records = Vec::with_capacity(capacity);
     for index in 0..cursor.record_count {
         cursor.start_record(index);
+        records.push(read(&mut cursor, index)?);
+    }
+    cursor.finish()?;
+    Ok(records)
+}
+
+fn read_cameras_bin(path: &Path) -> Result<Vec<ColmapCamera>, DataError> {
+    read_records(path, "camera", 4 + 4 + 8 + 8 + 3 * 8, |cursor, index| {
         let record_start = cursor.offset;
         let id = cursor.u32("camera_id")?;
         let model_id = cursor.i32("model_id")?;
@@ -609,21 +625,12 @@ fn read_cameras_bin(path: &Path) -> Result<Vec<ColmapCamera>, DataError> {
             index + 1,
             cursor.record_count
         );
-        cameras.push(build_camera(
-            path, &place, id, model, width, height, &params,
-        )?);
-    }
-    cursor.finish()?;
-    Ok(cameras)
+        build_camera(path, &place, id, model, width, height, &params)
+    })
 }
 
 fn read_images_bin(path: &Path) -> Result<Vec<PosedImage>, DataError> {
-    let bytes = read_bytes(path)?;
-    let mut cursor = BinaryCursor::new(path, &bytes, "image");
-    let capacity = cursor.record_count(4 + 7 * 8 + 4 + 1 + 8)?;
-    let mut images = Vec::with_capacity(capacity);
-    for index in 0..cursor.record_count {
-        cursor.start_record(index);
+    read_records(path, "image", 4 + 7 * 8 + 4 + 1 + 8, |cursor, index| {
         let record_start = cursor.offset;
         let id = cursor.u32("image_id")?;
         let qvec = cursor.f64s::<4>("qvec")?;
@@ -643,7 +650,7 @@ fn read_images_bin(path: &Path) -> Result<Vec<PosedImage>, DataError> {
         let world_to_camera = pose_matrix(qvec, tvec).ok_or_else(|| {
             cursor.error("pose has a zero or non-finite quaternion or translation")
         })?;
-        images.push(PosedImage {
+        Ok(PosedImage {
             id,
             name,
             camera_id,
@@ -653,19 +660,12 @@ fn read_images_bin(path: &Path) -> Result<Vec<PosedImage>, DataError> {
                 index + 1,
                 cursor.record_count
             ),
-        });
-    }
-    cursor.finish()?;
-    Ok(images)
+        })
+    })
 }
 
 fn read_points_bin(path: &Path) -> Result<Vec<InitPoint>, DataError> {
-    let bytes = read_bytes(path)?;
-    let mut cursor = BinaryCursor::new(path, &bytes, "point");
-    let capacity = cursor.record_count(8 + 3 * 8 + 3 + 8 + 8)?;
-    let mut points = Vec::with_capacity(capacity);
-    for index in 0..cursor.record_count {
-        cursor.start_record(index);
+    read_records(path, "point", 8 + 3 * 8 + 3 + 8 + 8, |cursor, _| {
         let _id = cursor.u64("point3D_id")?;
         let xyz = cursor.f64s::<3>("xyz")?;
         let rgb = cursor.array::<3>("rgb")?;
@@ -676,11 +676,9 @@ fn read_points_bin(path: &Path) -> Result<Vec<InitPoint>, DataError> {
         if !position.is_finite() {
             return Err(cursor.error(format!("non-finite position {position}")));
         }
-        points.push(InitPoint {
+        Ok(InitPoint {
             position,
             color: rgb.map(|c| f32::from(c) / 255.0),
-        });
-    }
-    cursor.finish()?;
-    Ok(points)
+        })
+    })
 }

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::error::{open_image, read_text};
 use super::{Camera, DataError, Dataset, View};
+use crate::io::image::box_filter;
 
 /// Where and how to read a D-NeRF scene (a scene-file entry).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -265,35 +266,17 @@ fn composite_downscaled(
     factor: u32,
     background: [f32; 3],
 ) -> (image::RgbImage, Vec<bool>) {
-    let (width, height) = (rgba.width() / factor, rgba.height() / factor);
-    let k = factor as usize;
-    let src = rgba.as_raw();
-    let src_stride = rgba.width() as usize * 4;
-    let norm = 1.0 / (255.0 * (k * k) as f32);
-    let mut image = image::RgbImage::new(width, height);
-    let mut foreground = Vec::with_capacity(width as usize * height as usize);
-    let mut sums = vec![0u32; width as usize * 4];
-    for (y, out_row) in image.chunks_exact_mut(width as usize * 3).enumerate() {
-        sums.fill(0);
-        for sy in y * k..(y + 1) * k {
-            let row = &src[sy * src_stride..sy * src_stride + width as usize * k * 4];
-            for (x, block) in row.chunks_exact(k * 4).enumerate() {
-                for px in block.chunks_exact(4) {
-                    for c in 0..4 {
-                        sums[x * 4 + c] += u32::from(px[c]);
-                    }
-                }
-            }
+    let norm = 1.0 / (255.0 * (factor * factor) as f32);
+    let mut foreground =
+        Vec::with_capacity((rgba.width() / factor) as usize * (rgba.height() / factor) as usize);
+    let image = box_filter(rgba, factor, |sum, out| {
+        let alpha = sum[3] as f32 * norm;
+        for c in 0..3 {
+            let value = sum[c] as f32 * norm * alpha + background[c] * (1.0 - alpha);
+            out[c] = (value.clamp(0.0, 1.0) * 255.0).round() as u8;
         }
-        for (out, sum) in out_row.chunks_exact_mut(3).zip(sums.chunks_exact(4)) {
-            let alpha = sum[3] as f32 * norm;
-            for c in 0..3 {
-                let value = sum[c] as f32 * norm * alpha + background[c] * (1.0 - alpha);
-                out[c] = (value.clamp(0.0, 1.0) * 255.0).round() as u8;
-            }
-            foreground.push(alpha > 0.5);
-        }
-    }
+        foreground.push(alpha > 0.5);
+    });
     (image, foreground)
 }
 

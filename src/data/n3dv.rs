@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use super::error::read_rgb8;
 use super::{Camera, DataError, Dataset, View, frame_time};
+use crate::io::image::box_downscale;
 
 /// Where and how to read an N3DV scene (the `n3dv` source of a RON scene file).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -522,28 +523,6 @@ fn check_downscale(
     Ok(())
 }
 
-/// Shrinks by an integer factor, averaging `factor × factor` blocks (edge remainders are
-/// cropped), so every output pixel sees the same footprint of the original.
-pub fn box_downscale(image: &RgbImage, factor: u32) -> RgbImage {
-    if factor <= 1 {
-        return image.clone();
-    }
-    let (width, height) = (image.width() / factor, image.height() / factor);
-    let area = factor * factor;
-    RgbImage::from_fn(width, height, |x, y| {
-        let mut sum = [0u32; 3];
-        for dy in 0..factor {
-            for dx in 0..factor {
-                let pixel = image.get_pixel(x * factor + dx, y * factor + dy);
-                for (s, &v) in sum.iter_mut().zip(&pixel.0) {
-                    *s += u32::from(v);
-                }
-            }
-        }
-        image::Rgb(sum.map(|s| ((s + area / 2) / area) as u8))
-    })
-}
-
 // ---------------------------------------------------------------------------------------
 // Video decoding through the system ffmpeg
 // ---------------------------------------------------------------------------------------
@@ -710,14 +689,5 @@ mod tests {
             names,
             ["9.png", "10.png", "cam01", "cam2", "cam10", "frame.png"]
         );
-    }
-
-    #[test]
-    fn box_downscale_averages_blocks_and_crops_the_remainder() {
-        let image = RgbImage::from_fn(5, 2, |x, _| image::Rgb([x as u8 * 10, 0, 255]));
-        let small = box_downscale(&image, 2);
-        assert_eq!(small.dimensions(), (2, 1));
-        assert_eq!(small.get_pixel(0, 0).0, [5, 0, 255]);
-        assert_eq!(small.get_pixel(1, 0).0, [25, 0, 255]);
     }
 }

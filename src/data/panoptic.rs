@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use super::error::{read_mask, read_rgb8, read_text};
 use super::{Camera, DataError, Dataset, View, frame_time};
+use crate::io::image::box_downscale;
 
 /// Where and how to read a Dynamic3DGaussians / CMU Panoptic dataset (a scene-file entry).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -160,7 +161,7 @@ pub fn load(source: &PanopticSource) -> Result<Dataset, DataError> {
         .map(|job| {
             let full = read_rgb8(&job.image_path, Some(job.size))?;
             let image = if factor > 1 {
-                downscale_rgb(&full, factor)
+                box_downscale(&full, factor)
             } else {
                 full
             };
@@ -492,34 +493,6 @@ pub(crate) fn check_rotation(r: DMat3) -> Result<(), String> {
     Ok(())
 }
 
-/// Box-filter (area average) downscale by an integer factor; sizes round down.
-pub(crate) fn downscale_rgb(image: &image::RgbImage, factor: u32) -> image::RgbImage {
-    let (width, height) = (image.width() / factor, image.height() / factor);
-    let k = factor as usize;
-    let count = (k * k) as u32;
-    let src = image.as_raw();
-    let src_stride = image.width() as usize * 3;
-    let mut out = image::RgbImage::new(width, height);
-    let mut sums = vec![0u32; width as usize * 3];
-    for (y, out_row) in out.chunks_exact_mut(width as usize * 3).enumerate() {
-        sums.fill(0);
-        for sy in y * k..(y + 1) * k {
-            let row = &src[sy * src_stride..sy * src_stride + width as usize * k * 3];
-            for (x, block) in row.chunks_exact(k * 3).enumerate() {
-                for px in block.chunks_exact(3) {
-                    sums[x * 3] += u32::from(px[0]);
-                    sums[x * 3 + 1] += u32::from(px[1]);
-                    sums[x * 3 + 2] += u32::from(px[2]);
-                }
-            }
-        }
-        for (dst, &sum) in out_row.iter_mut().zip(&sums) {
-            *dst = ((sum + count / 2) / count) as u8;
-        }
-    }
-    out
-}
-
 /// Nearest-neighbour downscale of a row-major mask by an integer factor (the block centre).
 pub(crate) fn downscale_mask(mask: &[bool], width: u32, height: u32, factor: u32) -> Vec<bool> {
     let (w, h, k) = (width as usize, height as usize, factor as usize);
@@ -572,20 +545,6 @@ mod tests {
         ];
         let m = parse_rigid(&rows).unwrap();
         assert_eq!(m.w_axis.truncate(), glam::DVec3::new(5.0, 6.0, 7.0));
-    }
-
-    #[test]
-    fn box_downscale_averages_blocks() {
-        let mut img = image::RgbImage::new(5, 4);
-        for (x, y, px) in img.enumerate_pixels_mut() {
-            *px = image::Rgb([(x * 10 + y) as u8, 100, 200]);
-        }
-        let small = downscale_rgb(&img, 2);
-        assert_eq!(small.dimensions(), (2, 2));
-        // Block (0,0): values 0,10,1,11 → mean 5.5 → rounds to 6.
-        assert_eq!(small.get_pixel(0, 0).0, [6, 100, 200]);
-        // Block (1,1): 22, 32, 23, 33 → 27.5 → 28.
-        assert_eq!(small.get_pixel(1, 1).0, [28, 100, 200]);
     }
 
     #[test]

@@ -108,3 +108,104 @@ impl Image {
         })
     }
 }
+
+/// Shrinks an 8-bit image by an integer `factor`, averaging `factor × factor` blocks with
+/// rounding (edge remainders are cropped), so every output pixel sees the same footprint of
+/// the original. A factor of 0 or 1 returns a copy.
+pub fn box_downscale<P>(
+    image: &image::ImageBuffer<P, Vec<u8>>,
+    factor: u32,
+) -> image::ImageBuffer<P, Vec<u8>>
+where
+    P: image::Pixel<Subpixel = u8>,
+{
+    if factor <= 1 {
+        return image.clone();
+    }
+    let area = factor * factor;
+    box_filter(image, factor, |sums, out| {
+        for (dst, &sum) in out.iter_mut().zip(sums) {
+            *dst = ((sum + area / 2) / area) as u8;
+        }
+    })
+}
+
+/// The block sums behind [`box_downscale`]: for each `factor × factor` block of `image`
+/// (edge remainders cropped), in row-major order, calls `write(sums, out)` with the
+/// per-channel sums of the block (`P::CHANNEL_COUNT` of them) and the output pixel's
+/// `Q::CHANNEL_COUNT` bytes to fill. `factor` must be at least 1.
+pub fn box_filter<P, Q>(
+    image: &image::ImageBuffer<P, Vec<u8>>,
+    factor: u32,
+    mut write: impl FnMut(&[u32], &mut [u8]),
+) -> image::ImageBuffer<Q, Vec<u8>>
+where
+    P: image::Pixel<Subpixel = u8>,
+    Q: image::Pixel<Subpixel = u8>,
+{
+    assert!(factor >= 1, "box filter factor must be at least 1");
+    let (width, height) = (image.width() / factor, image.height() / factor);
+    let (k, w) = (factor as usize, width as usize);
+    let (cin, cout) = (usize::from(P::CHANNEL_COUNT), usize::from(Q::CHANNEL_COUNT));
+    let src: &[u8] = image.as_raw();
+    let src_stride = image.width() as usize * cin;
+    let mut out = image::ImageBuffer::<Q, Vec<u8>>::new(width, height);
+    let mut sums = vec![0u32; w * cin];
+    for (y, out_row) in out.chunks_exact_mut(w * cout).enumerate() {
+        sums.fill(0);
+        for sy in y * k..(y + 1) * k {
+            let row = &src[sy * src_stride..sy * src_stride + w * k * cin];
+            for (block, sum) in row.chunks_exact(k * cin).zip(sums.chunks_exact_mut(cin)) {
+                for px in block.chunks_exact(cin) {
+                    for (s, &v) in sum.iter_mut().zip(px) {
+                        *s += u32::from(v);
+                    }
+                }
+            }
+        }
+        for (dst, sum) in out_row.chunks_exact_mut(cout).zip(sums.chunks_exact(cin)) {
+            write(sum, dst);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_downscale_averages_blocks_with_rounding_and_crops_the_remainder() {
+        let mut img = image::RgbImage::new(5, 4);
+        for (x, y, px) in img.enumerate_pixels_mut() {
+            *px = image::Rgb([(x * 10 + y) as u8, 100, 200]);
+        }
+        let small = box_downscale(&img, 2);
+        assert_eq!(small.dimensions(), (2, 2));
+        // Block (0,0): values 0,10,1,11 → mean 5.5 → rounds to 6.
+        assert_eq!(small.get_pixel(0, 0).0, [6, 100, 200]);
+        // Block (1,1): 22, 32, 23, 33 → 27.5 → 28.
+        assert_eq!(small.get_pixel(1, 1).0, [28, 100, 200]);
+        assert_eq!(box_downscale(&img, 1), img);
+    }
+
+    #[test]
+    fn box_downscale_keeps_the_channel_count() {
+        let rgba = image::RgbaImage::from_fn(4, 3, |x, _| image::Rgba([x as u8 * 10, 0, 255, 7]));
+        let small = box_downscale(&rgba, 2);
+        assert_eq!(small.dimensions(), (2, 1));
+        assert_eq!(small.get_pixel(0, 0).0, [5, 0, 255, 7]);
+        assert_eq!(small.get_pixel(1, 0).0, [25, 0, 255, 7]);
+    }
+
+    #[test]
+    fn box_filter_hands_over_block_sums() {
+        let rgba =
+            image::RgbaImage::from_fn(2, 2, |x, y| image::Rgba([1, 2, 3, (x + 2 * y) as u8]));
+        let out: image::GrayImage = box_filter(&rgba, 2, |sums, out| {
+            assert_eq!(&sums[..3], &[4, 8, 12]);
+            out[0] = sums[3] as u8;
+        });
+        assert_eq!(out.get_pixel(0, 0).0, [6]);
+    }
+}
