@@ -56,6 +56,16 @@ struct EvalArgs {
     no_renders: bool,
 }
 
+/// Which views `eval` scores.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum Split {
+    /// The held-out views (the protocol).
+    Test,
+    /// The training views instead (how well the model fits what it saw; results go to
+    /// <run>/train-split/).
+    Train,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Train on a scene file, save the model, then evaluate every held-out view.
@@ -82,6 +92,9 @@ enum Command {
         /// Override scene settings (e.g. the data path) before loading the data.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
+        /// Score the held-out views (test) or the training views (train).
+        #[arg(long, value_enum, default_value_t = Split::Test)]
+        split: Split,
         #[command(flatten)]
         eval: EvalArgs,
     },
@@ -168,17 +181,30 @@ fn run(cli: Cli) -> Result<()> {
         Command::Eval {
             run,
             overrides,
-            eval,
+            split,
+            mut eval,
         } => {
             let config = load_with_overrides(&run.join("scene.ron"), &overrides)?;
             let model_path = run.join("model.safetensors");
             let model = Model::load(&model_path)?;
-            let dataset = Arc::new(load_dataset(&config)?);
+            let mut dataset = load_dataset(&config)?;
+            let output = match split {
+                Split::Test => run.clone(),
+                Split::Train => {
+                    // Score the training views through the same path as held-out ones.
+                    dataset.test = std::mem::take(&mut dataset.train);
+                    eval.masks = None;
+                    run.join("train-split")
+                }
+            };
+            std::fs::create_dir_all(&output)
+                .with_context(|| format!("creating {}", output.display()))?;
+            let dataset = Arc::new(dataset);
             let mut trainer = Trainer::from_model(&config, dataset.clone(), &model);
-            let report = evaluate(&mut trainer, &dataset, &run, &eval, quiet)?;
+            let report = evaluate(&mut trainer, &dataset, &output, &eval, quiet)?;
             let summary = RunSummary::new(&config, &report, model.gaussians.len(), None);
-            write_metrics(&run, &summary, &report.scores)?;
-            summary.print(&run);
+            write_metrics(&output, &summary, &report.scores)?;
+            summary.print(&output);
             Ok(())
         }
         Command::Masks {
@@ -485,7 +511,7 @@ impl RunSummary {
             "iterations       {}  (VAD {}, TAT {}, TOW {})",
             self.iterations, self.vad, self.tat, self.tow
         );
-        println!("held-out views   {}", s.views);
+        println!("views scored     {}", s.views);
         println!("PSNR             {}", db(s.psnr));
         println!("SSIM             {}", plain(s.ssim));
         println!("LPIPS (alex)     {}", plain(s.lpips));

@@ -95,6 +95,13 @@ fn train_then_eval_reproduces_the_metrics() {
     for key in ["psnr", "ssim", "masked_psnr", "masked_ssim", "gaussians"] {
         assert_eq!(trained[key], evaluated[key], "{key} differs after reloading");
     }
+
+    // `--split train` scores the 15 training cameras × 6 frames into train-split/.
+    let out = tadgs(&["-q", "eval", run.to_str().unwrap(), "--split", "train", "--no-renders"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let on_train = summary(&run.join("train-split"));
+    assert_eq!(on_train["views"].as_u64(), Some(90));
+    assert!(on_train["psnr"].as_f64().is_some());
 }
 
 /// `masks` saves the mask of every held-out view as a PNG (for the synthetic scene, its exact
