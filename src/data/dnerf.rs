@@ -35,6 +35,25 @@ pub struct DNerfSource {
 }
 
 impl DNerfSource {
+    /// Checks the settings (not the files): downscale, split name and background colour.
+    pub fn check(&self) -> super::SettingCheck {
+        if self.downscale == 0 {
+            return Err(("downscale", "must be at least 1".into()));
+        }
+        if self.test_split != "test" && self.test_split != "val" {
+            return Err((
+                "test_split",
+                format!("must be \"test\" or \"val\", found {:?}", self.test_split),
+            ));
+        }
+        for (i, &c) in self.background.iter().enumerate() {
+            if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
+                return Err(("background", format!("channel {i} is {c}, outside [0, 1]")));
+            }
+        }
+        Ok(())
+    }
+
     /// A source with D-NeRF's defaults: white background, half resolution, `test` split.
     pub fn new(path: impl Into<String>) -> Self {
         Self {
@@ -84,19 +103,9 @@ struct Frame {
 /// one camera per image, foreground from alpha.
 pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
     let root = PathBuf::from(&source.path);
-    if source.downscale == 0 {
-        return Err(DataError::field(&root, "downscale", "must be at least 1"));
-    }
-    if source.test_split != "test" && source.test_split != "val" {
-        return Err(DataError::field(
-            &root,
-            "test_split",
-            format!("must be \"test\" or \"val\", found {:?}", source.test_split),
-        ));
-    }
-    if source.background.iter().any(|c| !c.is_finite()) {
-        return Err(DataError::field(&root, "background", "must be finite"));
-    }
+    source
+        .check()
+        .map_err(|(field, message)| DataError::field(&root, field, message))?;
     let (train_angle, mut train_frames) = read_transforms(&root, "train")?;
     let (test_angle, test_frames) = read_transforms(&root, &source.test_split)?;
     if train_frames.is_empty() {

@@ -42,9 +42,7 @@ pub struct View {
 impl View {
     /// The image as linear `f32` RGB in [0, 1].
     pub fn to_image(&self) -> Image {
-        let mut out = Image::filled(0, 0, [0.0; 3]);
-        self.copy_image_into(&mut out);
-        out
+        Image::from_rgb8(&self.image)
     }
 
     /// Writes the image into `out` as `f32` RGB, reusing its allocation.
@@ -138,6 +136,10 @@ pub fn load(source: &crate::scene::DataSource) -> Result<Dataset, DataError> {
         DataSource::N3dv(source) => n3dv::load(source),
     }
 }
+
+/// A setting of a data source that is out of range: the field and what is wrong. Readers
+/// report it as a [`DataError::Field`], scene files as an invalid `data.<field>`.
+pub type SettingCheck = Result<(), (&'static str, String)>;
 
 /// Normalised time of `frame` in a `frame_count`-frame sequence: `frame / (T − 1)`.
 pub fn frame_time(frame: usize, frame_count: usize) -> f32 {

@@ -59,6 +59,20 @@ fn default_test_cameras() -> Vec<usize> {
 }
 
 impl N3dvSource {
+    /// Checks the settings (not the files): downscale, frame count, held-out cameras.
+    pub fn check(&self) -> super::SettingCheck {
+        if self.downscale == 0 {
+            return Err(("downscale", "must be at least 1".into()));
+        }
+        if self.frames == Some(0) {
+            return Err(("frames", "must be at least 1 when given".into()));
+        }
+        if self.test_cameras.is_empty() {
+            return Err(("test_cameras", "hold out at least one camera".into()));
+        }
+        Ok(())
+    }
+
     /// A source for the scene at `path` with the benchmark's defaults.
     pub fn new(path: impl Into<String>) -> Self {
         Self {
@@ -109,16 +123,9 @@ struct LoadedFrames {
 pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
     let root = Path::new(&source.path);
     let poses_path = root.join(POSES_FILE);
-    if source.downscale == 0 {
-        return Err(DataError::field(root, "downscale", "must be at least 1"));
-    }
-    if source.frames == Some(0) {
-        return Err(DataError::field(
-            root,
-            "frames",
-            "must be at least 1 when given",
-        ));
-    }
+    source
+        .check()
+        .map_err(|(field, message)| DataError::field(root, field, message))?;
     let poses = read_poses(&poses_path)?;
     for &test in &source.test_cameras {
         if test >= poses.len() {

@@ -46,6 +46,20 @@ pub struct PanopticSource {
 }
 
 impl PanopticSource {
+    /// Checks the settings (not the files): stride, frame count and downscale.
+    pub fn check(&self) -> super::SettingCheck {
+        if self.frame_stride == 0 {
+            return Err(("frame_stride", "must be at least 1".into()));
+        }
+        if self.frames == Some(0) {
+            return Err(("frames", "must be at least 1, or None for all".into()));
+        }
+        if self.downscale == 0 {
+            return Err(("downscale", "must be at least 1".into()));
+        }
+        Ok(())
+    }
+
     /// A source for the whole dataset at `path`, at full resolution, with masks.
     pub fn new(path: impl Into<String>) -> Self {
         Self {
@@ -220,15 +234,9 @@ struct ViewJob {
 }
 
 fn check_source(source: &PanopticSource, root: &Path) -> Result<(), DataError> {
-    if source.frame_stride == 0 {
-        return Err(DataError::field(root, "frame_stride", "must be at least 1"));
-    }
-    if source.frames == Some(0) {
-        return Err(DataError::field(root, "frames", "must be at least 1"));
-    }
-    if source.downscale == 0 {
-        return Err(DataError::field(root, "downscale", "must be at least 1"));
-    }
+    source
+        .check()
+        .map_err(|(field, message)| DataError::field(root, field, message))?;
     if !root.is_dir() {
         return Err(DataError::io(
             root,

@@ -385,38 +385,16 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
     // data
     match &config.data {
         DataSource::Synthetic(scene) => validate_synthetic(scene)?,
-        DataSource::Panoptic(p) => {
-            nonzero("data.frame_stride", p.frame_stride)?;
-            nonzero("data.downscale", p.downscale)?;
-            if p.frames == Some(0) {
-                return fail("data.frames", "0 frames: give at least 1, or None for all");
-            }
-        }
-        DataSource::N3dv(n) => {
-            nonzero("data.downscale", n.downscale)?;
-            if n.frames == Some(0) {
-                return fail("data.frames", "0 frames: give at least 1, or None for all");
-            }
-            if n.test_cameras.is_empty() {
-                return fail("data.test_cameras", "hold out at least one camera");
-            }
-        }
-        DataSource::DNerf(d) => {
-            nonzero("data.downscale", d.downscale)?;
-            if !matches!(d.test_split.as_str(), "test" | "val") {
-                return fail(
-                    "data.test_split",
-                    format!("{:?}: expected \"test\" or \"val\"", d.test_split),
-                );
-            }
-            for (i, &c) in d.background.iter().enumerate() {
-                if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
-                    return fail("data.background", format!("channel {i} is {c}, outside [0, 1]"));
-                }
-            }
-        }
+        DataSource::Panoptic(p) => data_setting(p.check())?,
+        DataSource::N3dv(n) => data_setting(n.check())?,
+        DataSource::DNerf(d) => data_setting(d.check())?,
     }
     Ok(())
+}
+
+/// A data source's own setting check, reported under `data.<field>`.
+fn data_setting(check: crate::data::SettingCheck) -> Check {
+    check.or_else(|(field, message)| fail(&format!("data.{field}"), message))
 }
 
 fn validate_synthetic(scene: &crate::data::synthetic::SyntheticScene) -> Check {
