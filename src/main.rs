@@ -433,7 +433,10 @@ fn evaluate(
         if args.no_renders {
             return;
         }
-        let path = heldout.join(format!("cam{:02}_frame{:04}.png", score.camera, score.frame));
+        let path = heldout.join(format!(
+            "cam{:02}_frame{:04}.png",
+            score.camera, score.frame
+        ));
         if let Err(e) = side_by_side(render, gt).save_png(&path) {
             save_error.get_or_insert(e);
         }
@@ -537,7 +540,8 @@ fn write_metrics(output: &Path, summary: &RunSummary, scores: &[ViewScores]) -> 
         serde_json::to_string_pretty(&json)?.as_bytes(),
     )?;
     let cell = |v: Option<f32>| v.map_or(String::new(), |v| v.to_string());
-    let mut csv = String::from("camera,frame,time,psnr,ssim,lpips,m_psnr,m_ssim,dynamic_fraction\n");
+    let mut csv =
+        String::from("camera,frame,time,psnr,ssim,lpips,m_psnr,m_ssim,dynamic_fraction\n");
     for s in scores {
         csv.push_str(&format!(
             "{},{},{},{},{},{},{},{},{}\n",
@@ -555,9 +559,7 @@ fn write_metrics(output: &Path, summary: &RunSummary, scores: &[ViewScores]) -> 
     write_atomic(&output.join("metrics.csv"), csv.as_bytes())
 }
 
-/// Writes a file through a temporary file and a rename, so it is either complete or absent.
+/// Writes a whole file atomically (see [`tadgs::io::write_atomic`]).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))
+    tadgs::io::write_atomic(path, bytes).with_context(|| format!("writing {}", path.display()))
 }

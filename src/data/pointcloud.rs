@@ -11,8 +11,8 @@
 //! guess would risk a silently wrong cloud. Convert them to PLY.
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::BufReader;
+use std::path::Path;
 
 use glam::Vec3;
 use ply_rs_bw::parser::{Parser, Reader};
@@ -184,45 +184,21 @@ fn read_ply(path: &Path) -> Result<Vec<InitPoint>, DataError> {
 /// The file is written under a temporary name next to `path` and renamed into place, so a
 /// crash or a full disk never leaves a half-written cloud where a reader expects a whole one.
 pub fn write_point_cloud_ply(path: &Path, points: &[InitPoint]) -> Result<(), DataError> {
-    let temp = temp_path_beside(path);
-    let result = write_ply_body(&temp, points)
-        .and_then(|()| std::fs::rename(&temp, path).map_err(|e| DataError::io(path, e)));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temp);
-    }
-    result
-}
-
-fn temp_path_beside(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "points.ply".to_owned());
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
-}
-
-fn write_ply_body(temp: &Path, points: &[InitPoint]) -> Result<(), DataError> {
-    let io_error = |e| DataError::io(temp, e);
-    let file = File::create(temp).map_err(io_error)?;
-    let mut out = BufWriter::new(file);
-    write!(
-        out,
+    let header = format!(
         "ply\nformat binary_little_endian 1.0\ncomment written by tadgs\n\
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
         points.len()
-    )
-    .map_err(io_error)?;
+    );
+    let mut bytes = Vec::with_capacity(header.len() + points.len() * 15);
+    bytes.extend_from_slice(header.as_bytes());
     for point in points {
-        let mut record = [0u8; 15];
-        for (axis, value) in point.position.to_array().into_iter().enumerate() {
-            record[axis * 4..axis * 4 + 4].copy_from_slice(&value.to_le_bytes());
+        for value in point.position.to_array() {
+            bytes.extend_from_slice(&value.to_le_bytes());
         }
-        for (channel, value) in point.color.into_iter().enumerate() {
-            record[12 + channel] = (value.clamp(0.0, 1.0) * 255.0).round() as u8;
+        for value in point.color {
+            bytes.push((value.clamp(0.0, 1.0) * 255.0).round() as u8);
         }
-        out.write_all(&record).map_err(io_error)?;
     }
-    let file = out.into_inner().map_err(|e| io_error(e.into_error()))?;
-    file.sync_all().map_err(io_error)
+    crate::io::write_atomic(path, &bytes).map_err(|e| DataError::io(path, e))
 }

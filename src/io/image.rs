@@ -52,10 +52,8 @@ impl Image {
         self.width = rgb.width() as usize;
         self.height = rgb.height() as usize;
         self.data.clear();
-        self.data.extend(
-            rgb.pixels()
-                .map(|p| p.0.map(|c| c as f32 * (1.0 / 255.0))),
-        );
+        self.data
+            .extend(rgb.pixels().map(|p| p.0.map(|c| c as f32 * (1.0 / 255.0))));
     }
 
     /// Pixel at (x, y).
@@ -95,14 +93,14 @@ impl Image {
     /// Writes a PNG atomically (temporary file, then rename) so a crash never leaves half a file.
     pub fn save_png(&self, path: &Path) -> Result<(), ImageError> {
         let shown = path.display().to_string();
-        let tmp = path.with_extension("png.tmp");
+        let mut png = std::io::Cursor::new(Vec::new());
         self.to_rgb8()
-            .save_with_format(&tmp, image::ImageFormat::Png)
+            .write_to(&mut png, image::ImageFormat::Png)
             .map_err(|source| ImageError::Encode {
                 path: shown.clone(),
                 source,
             })?;
-        std::fs::rename(&tmp, path).map_err(|source| ImageError::Write {
+        super::write_atomic(path, png.get_ref()).map_err(|source| ImageError::Write {
             path: shown,
             source,
         })

@@ -112,19 +112,15 @@ impl Model {
             ("version".to_string(), MODEL_VERSION.to_string()),
             ("sh_degree".to_string(), self.sh_degree.to_string()),
         ]);
-        let bytes = safetensors::serialize(views, Some(metadata)).map_err(|e| {
-            ModelError::Format {
+        let bytes =
+            safetensors::serialize(views, Some(metadata)).map_err(|e| ModelError::Format {
                 path: path.to_path_buf(),
                 message: e.to_string(),
-            }
-        })?;
-        let write_error = |source| ModelError::Write {
+            })?;
+        super::write_atomic(path, &bytes).map_err(|source| ModelError::Write {
             path: path.to_path_buf(),
             source,
-        };
-        let tmp = path.with_extension("safetensors.tmp");
-        std::fs::write(&tmp, bytes).map_err(write_error)?;
-        std::fs::rename(&tmp, path).map_err(write_error)
+        })
     }
 
     /// Reads a model written by [`Model::save`], checking every tensor's type and shape.
@@ -216,7 +212,10 @@ fn read_column<P: Param>(
         .map_err(|_| tensor_error("missing".into()))?;
     let width = P::default().values().len();
     if view.dtype() != Dtype::F32 {
-        return Err(tensor_error(format!("dtype {:?}, expected F32", view.dtype())));
+        return Err(tensor_error(format!(
+            "dtype {:?}, expected F32",
+            view.dtype()
+        )));
     }
     let shape = view.shape();
     if shape.len() != 2 || shape[1] != width || rows.is_some_and(|n| n != shape[0]) {
@@ -286,7 +285,12 @@ mod tests {
             assert_eq!(a.scale, b.scale);
             assert_eq!(a.color, b.color);
         }
-        assert!(!dir.path().join("model.safetensors.tmp").exists());
+        // Nothing but the model is left in the folder (no temporary file).
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("model.safetensors")]);
     }
 
     /// A truncated file is an error naming the file, never a panic.
