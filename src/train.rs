@@ -9,10 +9,10 @@ use rand::SeedableRng;
 use crate::components::{
     Color, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
 };
+use crate::data::carve::{self, CarveError};
 use crate::data::init::{
     InitPoint, anchor_frames, nearest_neighbour_scales, random_points_in_view, scene_extent,
 };
-use crate::data::carve::{self, CarveError};
 use crate::data::pointcloud::read_point_cloud;
 use crate::data::{Camera, DataError, Dataset};
 use crate::io::image::Image;
@@ -98,7 +98,13 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
             return Err(InitError::Empty { frame });
         }
         spawned += points.len();
-        spawn_points(world, &points, dataset.frame_time(frame), temporal_scale, init.opacity);
+        spawn_points(
+            world,
+            &points,
+            dataset.frame_time(frame),
+            temporal_scale,
+            init.opacity,
+        );
     }
     Ok(spawned)
 }
@@ -122,7 +128,13 @@ fn anchor_points(
     };
     match init.method {
         InitMethod::Random => Ok(random(rng)),
-        InitMethod::Carve => Ok(carve::initial_points(dataset, frame, count, &init.carve, rng)?),
+        InitMethod::Carve => Ok(carve::initial_points(
+            dataset,
+            frame,
+            count,
+            &init.carve,
+            rng,
+        )?),
         InitMethod::Auto if carve::has_masks(dataset, frame) => {
             match carve::initial_points(dataset, frame, count, &init.carve, rng) {
                 Ok(points) => Ok(points),

@@ -64,12 +64,28 @@ fn train_then_eval_reproduces_the_metrics() {
         args.extend(["--lpips", path.to_str().unwrap()]);
     }
     let out = tadgs(&args);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    for line in ["PSNR", "SSIM", "LPIPS (alex)", "M-PSNR", "M-SSIM", "Gaussians"] {
+    for line in [
+        "PSNR",
+        "SSIM",
+        "LPIPS (alex)",
+        "M-PSNR",
+        "M-SSIM",
+        "Gaussians",
+    ] {
         assert!(stdout.contains(line), "summary lacks {line}: {stdout}");
     }
-    for file in ["scene.ron", "model.safetensors", "metrics.json", "metrics.csv"] {
+    for file in [
+        "scene.ron",
+        "model.safetensors",
+        "metrics.json",
+        "metrics.csv",
+    ] {
         assert!(run.join(file).is_file(), "{file} missing");
     }
     assert!(run.join("heldout/cam05_frame0003.png").is_file());
@@ -80,7 +96,11 @@ fn train_then_eval_reproduces_the_metrics() {
     // The synthetic scene has exact dynamic masks for all 6 held-out frames.
     assert_eq!(trained["masked_views"].as_u64(), Some(6));
     if lpips.is_some() {
-        assert!(trained["lpips"].as_f64().is_some_and(|v| v > 0.0 && v < 1.0));
+        assert!(
+            trained["lpips"]
+                .as_f64()
+                .is_some_and(|v| v > 0.0 && v < 1.0)
+        );
     }
     let csv = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 6);
@@ -90,15 +110,33 @@ fn train_then_eval_reproduces_the_metrics() {
         args.extend(["--lpips", path.to_str().unwrap()]);
     }
     let out = tadgs(&args);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let evaluated = summary(&run);
     for key in ["psnr", "ssim", "masked_psnr", "masked_ssim", "gaussians"] {
-        assert_eq!(trained[key], evaluated[key], "{key} differs after reloading");
+        assert_eq!(
+            trained[key], evaluated[key],
+            "{key} differs after reloading"
+        );
     }
 
     // `--split train` scores the 15 training cameras × 6 frames into train-split/.
-    let out = tadgs(&["-q", "eval", run.to_str().unwrap(), "--split", "train", "--no-renders"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = tadgs(&[
+        "-q",
+        "eval",
+        run.to_str().unwrap(),
+        "--split",
+        "train",
+        "--no-renders",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let on_train = summary(&run.join("train-split"));
     assert_eq!(on_train["views"].as_u64(), Some(90));
     assert!(on_train["psnr"].as_f64().is_some());
@@ -111,10 +149,23 @@ fn masks_command_writes_one_png_per_view() {
     let dir = tempfile::tempdir().unwrap();
     let scene = tiny_scene(dir.path());
     let masks = dir.path().join("masks");
-    let out = tadgs(&["-q", "masks", scene.to_str().unwrap(), "--output", masks.to_str().unwrap()]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = tadgs(&[
+        "-q",
+        "masks",
+        scene.to_str().unwrap(),
+        "--output",
+        masks.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(stdout.contains("6 of 6 held-out views have a dynamic mask"), "{stdout}");
+    assert!(
+        stdout.contains("6 of 6 held-out views have a dynamic mask"),
+        "{stdout}"
+    );
     for frame in 0..6 {
         assert!(masks.join(format!("cam05_frame{frame:04}.png")).is_file());
     }

@@ -98,7 +98,11 @@ pub fn open_image(path: &Path) -> Result<image::DynamicImage, DataError> {
     })
 }
 
-fn check_size(path: &Path, found: (u32, u32), expected: Option<(u32, u32)>) -> Result<(), DataError> {
+fn check_size(
+    path: &Path,
+    found: (u32, u32),
+    expected: Option<(u32, u32)>,
+) -> Result<(), DataError> {
     match expected {
         Some((width, height)) if (width, height) != found => Err(DataError::Size {
             path: path.to_path_buf(),

@@ -160,7 +160,9 @@ pub fn dynamic_masks(
             .folder
             .as_ref()
             .map(|f| f.join(mask_file_name(view.camera, view.frame)));
-        let from_file = file.as_ref().filter(|p| p.is_file() && view.dynamic_mask.is_none());
+        let from_file = file
+            .as_ref()
+            .filter(|p| p.is_file() && view.dynamic_mask.is_none());
         let mask = if let Some(path) = from_file {
             Some(read_mask_png(path, width, height)?)
         } else {
@@ -247,7 +249,11 @@ mod tests {
                     let (x, y) = (i % w, i / w);
                     let inside = (x0..x0 + 12).contains(&x) && (18..30).contains(&y);
                     let texture = 0.3 + 0.1 * ((x * 7 + y * 3) % 5) as f32;
-                    if inside { [0.9, 0.2, 0.1] } else { [texture; 3] }
+                    if inside {
+                        [0.9, 0.2, 0.1]
+                    } else {
+                        [texture; 3]
+                    }
                 })
                 .collect(),
         };
