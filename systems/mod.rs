@@ -9,6 +9,7 @@ pub mod adam;
 pub mod backward;
 pub mod deform;
 pub mod densify;
+pub mod describe;
 pub mod loss;
 pub mod sample_view;
 pub mod splat;
