@@ -39,25 +39,45 @@ pub fn init_task_pool() {
 
 /// Inserts every resource the tadgs systems read into `world`.
 pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dataset>) {
-    init_task_pool();
-    let settings = Settings::new(scene, dataset.frame_count, scene_extent(&dataset.cameras));
     let first = dataset.train.first();
-    world.insert_resource(ViewSample {
-        camera: first.map_or(dataset.cameras[0], |v| dataset.cameras[v.camera]),
+    let camera = first.map_or(dataset.cameras[0], |v| dataset.cameras[v.camera]);
+    let extent = scene_extent(&dataset.cameras);
+    insert_render_resources(world, scene, dataset.frame_count, extent, camera);
+    *world.resource_mut::<ViewSample>() = ViewSample {
+        camera,
         view: first.map(|_| 0),
         frame: first.map_or(0, |v| v.frame),
         time: first.map_or(0.0, |v| v.time),
-    });
-    world.insert_resource(settings);
-    world.insert_resource(TrainState::default());
+    };
     world.insert_resource(TrainingViews(dataset));
     world.insert_resource(ViewOrder::default());
     world.insert_resource(Rng::seeded(scene.train.seed));
+    world.insert_resource(LossImage::default());
+}
+
+/// Inserts the resources the render stages (time warp, deformation, splatting) read, for a
+/// sequence of `frame_count` frames and a rig of the given extent, viewing from `camera` at
+/// time 0. Enough to draw a trained model with [`render_schedule`] without a dataset.
+pub fn insert_render_resources(
+    world: &mut World,
+    scene: &SceneConfig,
+    frame_count: usize,
+    extent: f32,
+    camera: Camera,
+) {
+    init_task_pool();
+    world.insert_resource(Settings::new(scene, frame_count, extent));
+    world.insert_resource(TrainState::default());
+    world.insert_resource(ViewSample {
+        camera,
+        view: None,
+        frame: 0,
+        time: 0.0,
+    });
     world.insert_resource(match scene.train.backend {
         crate::scene::BackendKind::Cpu => Backend::Cpu,
     });
     world.insert_resource(SplatBuffers::default());
-    world.insert_resource(LossImage::default());
 }
 
 /// The initial Gaussians could not be made.

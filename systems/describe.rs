@@ -68,11 +68,13 @@ pub fn describe(
                 SystemAccess::Shared(access) => {
                     let combined = access.combined_access();
                     let writes: Vec<_> = combined
-                        .try_writes()
+                        .writes()
+                        .as_finite_set()
                         .map(|ids| ids.iter().collect())
                         .unwrap_or_default();
                     let reads: Vec<_> = combined
-                        .try_reads_and_writes()
+                        .reads()
+                        .as_finite_set()
                         .map(|ids| ids.iter().filter(|id| !writes.contains(id)).collect())
                         .unwrap_or_default();
                     let names = |ids: Vec<_>| {
