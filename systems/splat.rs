@@ -26,7 +26,7 @@ pub fn splat(
     buffers
         .deformed
         .par_iter()
-        .map(|d| project_splat(d, &camera))
+        .map(|d| project_splat(d, &camera, settings.train.near_plane))
         .collect_into_vec(&mut buffers.splats);
     let (width, height) = (camera.width as usize, camera.height as usize);
     buffers.rasterizer.forward(
@@ -38,9 +38,13 @@ pub fn splat(
     );
 }
 
-/// The splat of one deformed Gaussian; invisible when culled (behind the camera, off screen or
-/// with σ(t) below 1/255).
-pub fn project_splat(d: &Deformed, camera: &crate::data::Camera) -> Splat {
+/// The splat of one deformed Gaussian; invisible when culled (nearer than `near_plane`, off
+/// screen or with σ(t) below 1/255).
+pub fn project_splat(d: &Deformed, camera: &crate::data::Camera, near_plane: f32) -> Splat {
+    let depth = camera.world_to_camera.transform_point3(Vec3::from_array(d.mean)).z;
+    if !(depth >= near_plane) {
+        return Splat::default();
+    }
     match project(
         Vec3::from_array(d.mean),
         d.rotation,

@@ -274,7 +274,7 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 ///
 /// Checked: `train.iterations > 0`; `lambda_dssim` in [0, 1]; every learning rate finite
 /// and ≥ 0 (`sh_rest_divisor` > 0) with `position_final ≤ position`; background channels
-/// in [0, 1]; `model.sh_degree ≤ 3`; `tow.window_frames > 0`, `tow.rho` in (0, 1);
+/// in [0, 1]; `near_plane > 0`; `model.sh_degree ≤ 3`; `tow.window_frames > 0`, `tow.rho` in (0, 1);
 /// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
 /// `grad_threshold > 0`; `percent_dense > 0`; `interval > 0`; `from_iter ≤ until_iter`;
 /// `prune_opacity` in [0, 1); `vad_min_opacity` in [0, 1) if set; `max_gaussians ≥ 1`;
@@ -286,6 +286,7 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
     let t = &config.train;
     nonzero("train.iterations", t.iterations)?;
     in_range("train.lambda_dssim", t.lambda_dssim, 0.0, true, 1.0, true)?;
+    positive("train.near_plane", t.near_plane)?;
     for (i, &c) in t.background.iter().enumerate() {
         if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
             return fail(
