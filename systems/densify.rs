@@ -11,7 +11,7 @@ use crate::components::{
     Adam, Deformed, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
     fresh_optimizer_state,
 };
-use crate::model::deform::{lifespan_fraction, logit, sigmoid};
+use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
 use crate::scene::TatForm;
 
@@ -170,8 +170,10 @@ pub fn densify_and_prune(
         } else {
             // Split: the Gaussian and its copy move to two samples of itself, scales / 1.6.
             let sigma = Vec3::from_array(scale.d0).exp();
-            let q = rotation.c0;
-            let rot = Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
+            // rotation_at normalises as rendering does (identity for a zero quaternion, which
+            // Quat::normalize would turn into NaN positions).
+            let [w, x, y, z] = rotation_at(rotation.c0, [0.0; 4], 0.0);
+            let rot = Quat::from_xyzw(x, y, z, w);
             let mut sample = || {
                 let n = Vec3::new(
                     StandardNormal.sample(&mut rng.0),
