@@ -1,6 +1,8 @@
 //! Dataset file formats: N3DV (LLFF poses + frames or videos), COLMAP sparse models and PLY
 //! point clouds, read from tiny files the tests write by hand, and their errors on bad input.
 
+mod mutate;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -1057,4 +1059,38 @@ fn ply_malformed_corpus() {
             Err(error) => assert_error_mentions(&error, &file, needles),
         }
     }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+
+    /// Damaged binary and ascii PLY files (or random bytes) never panic the reader, and an
+    /// error always names the file.
+    #[test]
+    fn damaged_ply_never_panics(
+        binary in mutate::damaged(sample_ply_bytes()),
+        ascii in mutate::damaged(ASCII_PLY.to_vec()),
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        for (name, bytes) in [("binary.ply", binary), ("ascii.ply", ascii)] {
+            let path = write(dir.path(), name, &bytes);
+            if let Err(error) = read_point_cloud(&path) {
+                proptest::prop_assert!(error.to_string().contains(name), "{}", error);
+            }
+        }
+    }
+}
+
+/// An ascii PLY with colours, normals and a face element.
+const ASCII_PLY: &[u8] = b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n\
+    property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n\
+    property uchar blue\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\
+    1 2 3 255 0 0\n-1 0.5 2e1 0 128 255\n3 0 1 0\n";
+
+/// The sample cloud as binary PLY bytes.
+fn sample_ply_bytes() -> Vec<u8> {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sample.ply");
+    write_point_cloud_ply(&path, &sample_points()).unwrap();
+    std::fs::read(path).unwrap()
 }

@@ -3,6 +3,8 @@
 //! and point-cloud corpora live next to their readers' tests: scene_errors.rs, readers.rs,
 //! formats.rs.)
 
+mod mutate;
+
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -225,4 +227,19 @@ fn corpus_builder_makes_valid_models() {
     std::fs::write(&path, model_file(3, 0.5, &META, |_| {})).unwrap();
     let model = Model::load(&path).unwrap();
     assert_eq!((model.gaussians.len(), model.sh_degree), (3, 2));
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+
+    /// Damaged model files (or random bytes) never panic the reader; an error names the file.
+    #[test]
+    fn damaged_model_files_never_panic(bytes in mutate::damaged(model_file(4, 0.25, &META, |_| {}))) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("damaged.safetensors");
+        std::fs::write(&path, &bytes).unwrap();
+        if let Err(error) = Model::load(&path) {
+            proptest::prop_assert!(error.to_string().contains("damaged.safetensors"), "{}", error);
+        }
+    }
 }

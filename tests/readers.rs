@@ -2,11 +2,13 @@
 //! and malformed files rejected with errors that name the file and the problem.
 
 mod common;
+mod mutate;
 
 use std::path::Path;
 use std::time::Instant;
 
 use glam::{Mat4, Vec3};
+use proptest::test_runner::{Config, TestRunner};
 use serde_json::{Value, json};
 use tadgs::data::dnerf::{self, DNerfSource};
 use tadgs::data::panoptic::{self, PanopticSource};
@@ -907,4 +909,47 @@ fn dnerf_malformed_corpus() {
         eprintln!("case: {name}");
         expect_dnerf_error(defect, expected);
     }
+}
+
+/// Runs `load` on a valid dataset whose file `name` is replaced by damaged versions of
+/// itself (or random bytes), 64 times: it must never panic, and an error must name a file
+/// of the dataset folder.
+fn fuzz_file<T>(dir: &tempfile::TempDir, name: &str, load: impl Fn() -> Result<T, DataError>) {
+    let path = dir.path().join(name);
+    let valid = std::fs::read(&path).unwrap();
+    let folder = dir.path().to_string_lossy().into_owned();
+    let mut runner = TestRunner::new(Config::with_cases(64));
+    runner
+        .run(&mutate::damaged(valid), |bytes| {
+            std::fs::write(&path, &bytes).unwrap();
+            if let Err(error) = load() {
+                let message = error.to_string();
+                assert!(message.contains(&folder), "{message}");
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+/// Damaged `train_meta.json` files never panic the Panoptic reader.
+#[test]
+fn damaged_panoptic_meta_never_panics() {
+    let dir = synthetic_panoptic();
+    fuzz_file(&dir, "train_meta.json", || panoptic::load(&source(&dir)));
+}
+
+/// Damaged `transforms_train.json` files never panic the D-NeRF reader.
+#[test]
+fn damaged_dnerf_transforms_never_panic() {
+    let dir = synthetic_dnerf();
+    fuzz_file(&dir, "transforms_train.json", || {
+        dnerf::load(&dnerf_source(&dir))
+    });
+}
+
+/// Damaged PNG images never panic the Panoptic reader.
+#[test]
+fn damaged_panoptic_image_never_panics() {
+    let dir = synthetic_panoptic();
+    fuzz_file(&dir, "ims/4/000000.png", || panoptic::load(&source(&dir)));
 }

@@ -1,5 +1,8 @@
 //! Scene files: parsing with defaults, and errors that point at the file, line and field.
 
+mod mutate;
+
+use proptest::prelude::*;
 use tadgs::scene::load::{apply_overrides, set_override, validate};
 use tadgs::scene::*;
 
@@ -689,4 +692,20 @@ fn non_utf8_scene_file_is_named() {
     let error = load_scene(&path).unwrap_err();
     assert!(matches!(error, SceneError::Io { .. }), "{error:?}");
     assert!(error.to_string().contains("binary.ron"), "{error}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Property: the demo scene's text with random damage (or random bytes) never panics
+    /// the parser, and every error it gives names the file.
+    #[test]
+    fn damaged_scene_text_never_panics(
+        bytes in mutate::damaged(include_bytes!("../scenes/demo.ron").to_vec())
+    ) {
+        let text = String::from_utf8_lossy(&bytes);
+        if let Err(error) = parse_scene(&text, "scene.ron") {
+            prop_assert!(error.to_string().starts_with("scene.ron"), "{}", error);
+        }
+    }
 }
