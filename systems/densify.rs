@@ -139,6 +139,8 @@ pub fn densify_and_prune(
     };
     let mut population = gaussians.iter().len();
     let prune_big = d.prune_big && state.iteration > d.opacity_reset_interval;
+    // Gaussians that qualified for densification but were refused by the population cap.
+    let mut capped = 0usize;
     for (entity, mut position, rotation, mut scale, opacity, mut accum) in gaussians.iter_mut() {
         let stats = std::mem::take(&mut *accum);
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
@@ -156,7 +158,11 @@ pub fn densify_and_prune(
         } else {
             d.grad_threshold
         };
-        if mean_gradient(&stats) < threshold || population >= d.max_gaussians {
+        if mean_gradient(&stats) < threshold {
+            continue;
+        }
+        if population >= d.max_gaussians {
+            capped += 1;
             continue;
         }
         population += 1;
@@ -194,6 +200,14 @@ pub fn densify_and_prune(
                 .insert(Position { mean: b.to_array() });
             report.split += 1;
         }
+    }
+    if capped > 0 {
+        tracing::info!(
+            "iteration {}: population cap densify.max_gaussians = {} reached; {capped} \
+             Gaussians were not cloned or split",
+            state.iteration,
+            d.max_gaussians
+        );
     }
     state.last_densify = report;
 }
