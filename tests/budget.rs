@@ -1,11 +1,12 @@
 //! Resource bounds: the memory estimate logged before training, the error for a run whose
 //! initial Gaussians cannot fit, and the population cap with its log line.
 
+mod tiny;
+
 use std::io::Write;
 use std::sync::{Arc, Mutex, Once};
 
-use tadgs::data::synthetic::demo_scene;
-use tadgs::scene::{DataSource, SceneConfig};
+use tadgs::scene::SceneConfig;
 use tadgs::train::{InitError, Trainer};
 
 /// Everything logged in this test binary (one global subscriber: the systems log from
@@ -39,18 +40,8 @@ fn logged() -> String {
     String::from_utf8_lossy(&LOG.lock().unwrap()).into_owned()
 }
 
-/// A 6-frame, 32×24 demo scene with 3 anchors × 60 points.
 fn tiny_scene() -> (SceneConfig, Arc<tadgs::data::Dataset>) {
-    let mut synthetic = demo_scene();
-    synthetic.frames = 6;
-    synthetic.width = 32;
-    synthetic.height = 24;
-    synthetic.supersample = 1;
-    let mut config = SceneConfig::new("tiny", DataSource::Synthetic(synthetic.clone()));
-    config.init.points_per_anchor = 60;
-    config.init.anchor_spacing = 3;
-    let dataset = Arc::new(synthetic.build().expect("tiny scene builds"));
-    (config, dataset)
+    tiny::tiny_demo(32, 24, 60)
 }
 
 /// Densification stops growing at `densify.max_gaussians`: with every Gaussian qualifying,

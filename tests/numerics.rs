@@ -3,16 +3,17 @@
 //! huge opacity logits), never give NaN or infinity in the forward or backward pass, from
 //! the per-Gaussian maths through the rasterizer to whole training steps.
 
+mod tiny;
+
 use std::sync::{Arc, OnceLock};
 
 use glam::{Vec2, Vec3};
 use proptest::prelude::*;
 use tadgs::components::{Deformed, GaussianParams, Opacity, Param, Position, Rotation, Scale};
-use tadgs::data::synthetic::demo_scene;
 use tadgs::data::{Camera, Dataset};
 use tadgs::model::{NEAR_PLANE, project, project_backward, rotation_at, sigmoid};
 use tadgs::raster::{Rasterizer, RenderOutput, SplatGrad};
-use tadgs::scene::{DataSource, SceneConfig};
+use tadgs::scene::SceneConfig;
 use tadgs::systems::splat::project_splat;
 use tadgs::train::Trainer;
 
@@ -214,19 +215,11 @@ proptest! {
 fn tiny_scene() -> &'static (SceneConfig, Arc<Dataset>) {
     static SCENE: OnceLock<(SceneConfig, Arc<Dataset>)> = OnceLock::new();
     SCENE.get_or_init(|| {
-        let mut synthetic = demo_scene();
-        synthetic.frames = 6;
-        synthetic.width = 32;
-        synthetic.height = 24;
-        synthetic.supersample = 1;
-        let mut config = SceneConfig::new("tiny", DataSource::Synthetic(synthetic.clone()));
-        config.init.points_per_anchor = 60;
-        config.init.anchor_spacing = 3;
+        let (mut config, dataset) = tiny::tiny_demo(32, 24, 60);
         // Densify and reset opacities inside the few steps each case runs.
         config.densify.from_iter = 1;
         config.densify.interval = 2;
         config.densify.opacity_reset_interval = 3;
-        let dataset = Arc::new(synthetic.build().expect("tiny scene builds"));
         (config, dataset)
     })
 }
