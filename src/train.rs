@@ -6,6 +6,7 @@ use std::sync::Arc;
 use bevy_ecs::prelude::*;
 use rand::SeedableRng;
 
+use crate::budget::{self, BudgetError, MemoryEstimate};
 use crate::components::{
     Color, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
 };
@@ -89,6 +90,8 @@ pub enum InitError {
     PointCloud(#[from] DataError),
     #[error("initialisation: no points for anchor frame {frame}")]
     Empty { frame: usize },
+    #[error("initialisation: {0}")]
+    Memory(#[from] BudgetError),
 }
 
 /// Spawns the initial Gaussians: the points of `scene.init.method` at every anchor frame.
@@ -213,6 +216,32 @@ pub fn spawn_points(
     world.spawn_batch(bundles);
 }
 
+/// Logs the run's memory estimate and checks it against the available memory: an error
+/// when the initial Gaussians do not fit, a lower population cap (with a warning) when
+/// `densify.max_gaussians` does not (see [`crate::budget`]).
+fn apply_memory_budget(
+    world: &mut World,
+    scene: &SceneConfig,
+    dataset: &Dataset,
+) -> Result<(), BudgetError> {
+    let estimate = MemoryEstimate::new(scene, dataset);
+    tracing::info!("{estimate}");
+    let Some(available) = budget::available_memory() else {
+        return Ok(());
+    };
+    let cap = estimate.check(available, budget::largest_camera(dataset))?;
+    if cap < estimate.max_gaussians {
+        tracing::warn!(
+            "densify.max_gaussians lowered from {} to {cap}: more would not fit in the {:.2} GB \
+             of memory available",
+            estimate.max_gaussians,
+            available as f64 / 1e9
+        );
+        world.resource_mut::<Settings>().densify.max_gaussians = cap as usize;
+    }
+    Ok(())
+}
+
 /// The scores of every held-out view and the time spent rendering them (metrics excluded).
 #[derive(Clone, Debug, Default)]
 pub struct Evaluation {
@@ -240,7 +269,8 @@ impl Trainer {
     /// with `Carve`) is an error.
     pub fn try_new(scene: &SceneConfig, dataset: Arc<Dataset>) -> Result<Self, InitError> {
         let mut world = World::new();
-        insert_resources(&mut world, scene, dataset);
+        insert_resources(&mut world, scene, dataset.clone());
+        apply_memory_budget(&mut world, scene, &dataset)?;
         spawn_initial_gaussians(&mut world, scene)?;
         Ok(Self::with_world(world))
     }

@@ -11,7 +11,7 @@ use crate::components::{
     Adam, Deformed, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
     fresh_optimizer_state,
 };
-use crate::model::deform::{lifespan_fraction, logit, sigmoid};
+use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
 use crate::scene::TatForm;
 
@@ -139,6 +139,8 @@ pub fn densify_and_prune(
     };
     let mut population = gaussians.iter().len();
     let prune_big = d.prune_big && state.iteration > d.opacity_reset_interval;
+    // Gaussians that qualified for densification but were refused by the population cap.
+    let mut capped = 0usize;
     for (entity, mut position, rotation, mut scale, opacity, mut accum) in gaussians.iter_mut() {
         let stats = std::mem::take(&mut *accum);
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
@@ -156,7 +158,11 @@ pub fn densify_and_prune(
         } else {
             d.grad_threshold
         };
-        if mean_gradient(&stats) < threshold || population >= d.max_gaussians {
+        if mean_gradient(&stats) < threshold {
+            continue;
+        }
+        if population >= d.max_gaussians {
+            capped += 1;
             continue;
         }
         population += 1;
@@ -170,8 +176,10 @@ pub fn densify_and_prune(
         } else {
             // Split: the Gaussian and its copy move to two samples of itself, scales / 1.6.
             let sigma = Vec3::from_array(scale.d0).exp();
-            let q = rotation.c0;
-            let rot = Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
+            // rotation_at normalises as rendering does (identity for a zero quaternion, which
+            // Quat::normalize would turn into NaN positions).
+            let [w, x, y, z] = rotation_at(rotation.c0, [0.0; 4], 0.0);
+            let rot = Quat::from_xyzw(x, y, z, w);
             let mut sample = || {
                 let n = Vec3::new(
                     StandardNormal.sample(&mut rng.0),
@@ -192,6 +200,14 @@ pub fn densify_and_prune(
                 .insert(Position { mean: b.to_array() });
             report.split += 1;
         }
+    }
+    if capped > 0 {
+        tracing::info!(
+            "iteration {}: population cap densify.max_gaussians = {} reached; {capped} \
+             Gaussians were not cloned or split",
+            state.iteration,
+            d.max_gaussians
+        );
     }
     state.last_densify = report;
 }

@@ -1,6 +1,8 @@
 //! Dataset file formats: N3DV (LLFF poses + frames or videos), COLMAP sparse models and PLY
 //! point clouds, read from tiny files the tests write by hand, and their errors on bad input.
 
+mod mutate;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -988,4 +990,107 @@ fn point_cloud_rejects_unsupported_formats() {
     let path = write(dir.path(), "cloud.xyz", b"1 2 3");
     let error = read_point_cloud(&path).unwrap_err();
     assert_error_mentions(&error, "cloud.xyz", &["unknown point cloud format"]);
+}
+
+/// PLY malformed-input corpus: each file below is refused with an error naming the file and
+/// the problem (header, element, vertex), never a panic and never an empty cloud.
+#[test]
+fn ply_malformed_corpus() {
+    let header = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
+                  property float z\n";
+    let binary = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n\
+                  property float y\nproperty float z\nend_header\n";
+    let nan_vertex: Vec<u8> = [1.0f32, f32::NAN, 2.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let cases: Vec<(&str, Vec<u8>, &[&str])> = vec![
+        ("empty file", Vec::new(), &["invalid PLY header"]),
+        (
+            "no magic line",
+            b"format ascii 1.0\nelement vertex 1\nend_header\n".to_vec(),
+            &["invalid PLY header"],
+        ),
+        (
+            "header without end_header",
+            header.as_bytes().to_vec(),
+            &["invalid PLY header"],
+        ),
+        (
+            "unknown format",
+            b"ply\nformat utf8 1.0\nelement vertex 0\nend_header\n".to_vec(),
+            &["invalid PLY header"],
+        ),
+        (
+            "no vertex element",
+            b"ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int i\nend_header\n"
+                .to_vec(),
+            &["no `vertex` element"],
+        ),
+        (
+            "only some colour channels",
+            format!("{header}property uchar red\nend_header\n1 2 3 4\n5 6 7 8\n").into_bytes(),
+            &["vertex.red/green/blue", "all three or none"],
+        ),
+        (
+            "non-numeric value",
+            format!("{header}end_header\n1 2 3\n4 five 6\n").into_bytes(),
+            &["malformed PLY body", "`vertex`"],
+        ),
+        (
+            "non-finite position",
+            [binary.as_bytes(), &nan_vertex].concat(),
+            &["vertex 0", "non-finite"],
+        ),
+        (
+            "huge declared count, tiny body",
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\n\
+             property float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0"
+                .to_vec(),
+            &["truncated", "`vertex`", "4000000000 declared"],
+        ),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    for (index, (name, contents, needles)) in cases.iter().enumerate() {
+        let file = format!("case{index}.ply");
+        let path = write(dir.path(), &file, contents);
+        match read_point_cloud(&path) {
+            Ok(points) => panic!("case `{name}` was accepted with {} points", points.len()),
+            Err(error) => assert_error_mentions(&error, &file, needles),
+        }
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+
+    /// Damaged binary and ascii PLY files (or random bytes) never panic the reader, and an
+    /// error always names the file.
+    #[test]
+    fn damaged_ply_never_panics(
+        binary in mutate::damaged(sample_ply_bytes()),
+        ascii in mutate::damaged(ASCII_PLY.to_vec()),
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        for (name, bytes) in [("binary.ply", binary), ("ascii.ply", ascii)] {
+            let path = write(dir.path(), name, &bytes);
+            if let Err(error) = read_point_cloud(&path) {
+                proptest::prop_assert!(error.to_string().contains(name), "{}", error);
+            }
+        }
+    }
+}
+
+/// An ascii PLY with colours, normals and a face element.
+const ASCII_PLY: &[u8] = b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n\
+    property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n\
+    property uchar blue\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\
+    1 2 3 255 0 0\n-1 0.5 2e1 0 128 255\n3 0 1 0\n";
+
+/// The sample cloud as binary PLY bytes.
+fn sample_ply_bytes() -> Vec<u8> {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sample.ply");
+    write_point_cloud_ply(&path, &sample_points()).unwrap();
+    std::fs::read(path).unwrap()
 }

@@ -2,11 +2,13 @@
 //! and malformed files rejected with errors that name the file and the problem.
 
 mod common;
+mod mutate;
 
 use std::path::Path;
 use std::time::Instant;
 
 use glam::{Mat4, Vec3};
+use proptest::test_runner::{Config, TestRunner};
 use serde_json::{Value, json};
 use tadgs::data::dnerf::{self, DNerfSource};
 use tadgs::data::panoptic::{self, PanopticSource};
@@ -719,4 +721,235 @@ fn dnerf_test_split_is_checked() {
     .unwrap_err()
     .to_string();
     assert!(message.contains("test_split"), "{message}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Malformed-input corpus: more defects of each kind, each one rejected with an error that
+// names the file and the problem (never a panic).
+
+/// A file of bytes that no image decoder accepts.
+fn write_garbage(path: &Path) {
+    std::fs::write(path, b"\x89PNG\r\n\x1a\n this is not really a PNG").unwrap();
+}
+
+type Defect = fn(&Path);
+
+/// Panoptic: every defect below is rejected, and the error names the file (or entry) and
+/// what is wrong with it.
+#[test]
+fn panoptic_malformed_corpus() {
+    let cases: &[(&str, Defect, &[&str])] = &[
+        (
+            "corrupt image bytes",
+            |root| write_garbage(&root.join("ims/6/000001.png")),
+            &["cannot decode image", "6/000001.png"],
+        ),
+        (
+            "corrupt mask bytes",
+            |root| write_garbage(&root.join("seg/4/000000.png")),
+            &["cannot decode image", "seg/4/000000.png"],
+        ),
+        (
+            "mask of the wrong size",
+            |root| {
+                save_image(&root.join("seg/4/000001.png"), 4, 4, |_, _| {
+                    image::Luma([255u8])
+                })
+            },
+            &["seg/4/000001.png", "4×4", "8×6"],
+        ),
+        (
+            "wrong value type",
+            |root| edit_train_meta(root, |m| m["w"] = json!("eight")),
+            &["train_meta.json", "invalid JSON", "line"],
+        ),
+        (
+            "w2c of the wrong size",
+            |root| edit_train_meta(root, |m| drop(m["w2c"][0][0].as_array_mut().unwrap().pop())),
+            &["train_meta.json", "`w2c[0][0]`", "4x4"],
+        ),
+        (
+            "zero focal length",
+            |root| edit_train_meta(root, |m| m["k"][0][0][0][0] = json!(0.0)),
+            &["train_meta.json", "`k[0][0]`", "focal"],
+        ),
+        (
+            "zero image width",
+            |root| edit_train_meta(root, |m| m["w"] = json!(0)),
+            &["train_meta.json", "`w`", "positive"],
+        ),
+        (
+            "a camera twice in one timestep",
+            |root| edit_train_meta(root, |m| m["cam_id"][1][1] = json!(4)),
+            &["train_meta.json", "`cam_id[1]`", "appears twice"],
+        ),
+        (
+            "no timesteps",
+            |root| {
+                for name in ["train_meta.json", "test_meta.json"] {
+                    let empty = json!({"w": W, "h": H, "k": [], "w2c": [], "fn": [], "cam_id": []});
+                    write_json(&root.join(name), &empty);
+                }
+            },
+            &["train_meta.json", "no timesteps"],
+        ),
+        (
+            "missing meta file",
+            |root| std::fs::remove_file(root.join("test_meta.json")).unwrap(),
+            &["cannot read", "test_meta.json"],
+        ),
+        (
+            "meta file that is not an object",
+            |root| std::fs::write(root.join("train_meta.json"), "[1, 2, 3]").unwrap(),
+            &["train_meta.json", "invalid JSON"],
+        ),
+        (
+            "timestep lists of different lengths",
+            |root| edit_train_meta(root, |m| drop(m["cam_id"].as_array_mut().unwrap().pop())),
+            &["train_meta.json", "`cam_id`", "timesteps"],
+        ),
+    ];
+    for (name, defect, expected) in cases {
+        eprintln!("case: {name}");
+        expect_panoptic_error(defect, expected);
+    }
+}
+
+/// Panoptic: a downscale that leaves no pixel of the image is refused, naming the setting
+/// and the image size (rather than making 0×0 cameras).
+#[test]
+fn panoptic_downscale_larger_than_images_is_rejected() {
+    let dir = synthetic_panoptic();
+    let message = panoptic::load(&PanopticSource {
+        downscale: 16,
+        ..source(&dir)
+    })
+    .unwrap_err()
+    .to_string();
+    for part in ["train_meta.json", "downscale", "8×6"] {
+        assert!(
+            message.contains(part),
+            "`{message}` does not mention `{part}`"
+        );
+    }
+}
+
+/// D-NeRF: every defect below is rejected, and the error names the file (or frame) and
+/// what is wrong with it.
+#[test]
+fn dnerf_malformed_corpus() {
+    let cases: &[(&str, Defect, &[&str])] = &[
+        (
+            "corrupt image bytes",
+            |root| write_garbage(&root.join("test/r_001.png")),
+            &["cannot decode image", "r_001.png"],
+        ),
+        (
+            "image smaller than the downscale",
+            |root| {
+                save_image(&root.join("train/r_000.png"), 1, 1, |_, _| {
+                    image::Rgba([0u8, 0, 0, 255])
+                })
+            },
+            &["r_000.png", "1×1", "downscale by 2"],
+        ),
+        (
+            "missing frames",
+            |root| {
+                edit_transforms(root, "train", |t| {
+                    drop(t.as_object_mut().unwrap().remove("frames"))
+                })
+            },
+            &["transforms_train.json", "`frames`", "missing"],
+        ),
+        (
+            "frame without time",
+            |root| {
+                edit_transforms(root, "test", |t| {
+                    drop(t["frames"][0].as_object_mut().unwrap().remove("time"))
+                })
+            },
+            &["transforms_test.json", "`frames[0].time`", "missing"],
+        ),
+        (
+            "field of view out of range",
+            |root| edit_transforms(root, "train", |t| t["camera_angle_x"] = json!(4.0)),
+            &["transforms_train.json", "`camera_angle_x`", "(0, π)"],
+        ),
+        (
+            "scaled transform matrix",
+            |root| {
+                edit_transforms(root, "train", |t| {
+                    t["frames"][1]["transform_matrix"][0][0] = json!(3.0)
+                })
+            },
+            &[
+                "transforms_train.json",
+                "`frames[1].transform_matrix`",
+                "orthonormal",
+            ],
+        ),
+        (
+            "no training frames",
+            |root| edit_transforms(root, "train", |t| t["frames"] = json!([])),
+            &["transforms_train.json", "no training frames"],
+        ),
+        (
+            "missing transforms file",
+            |root| std::fs::remove_file(root.join("transforms_test.json")).unwrap(),
+            &["cannot read", "transforms_test.json"],
+        ),
+        (
+            "wrong value type",
+            |root| edit_transforms(root, "train", |t| t["frames"][0]["time"] = json!("noon")),
+            &["transforms_train.json", "invalid JSON"],
+        ),
+    ];
+    for (name, defect, expected) in cases {
+        eprintln!("case: {name}");
+        expect_dnerf_error(defect, expected);
+    }
+}
+
+/// Runs `load` on a valid dataset whose file `name` is replaced by damaged versions of
+/// itself (or random bytes), 64 times: it must never panic, and an error must name a file
+/// of the dataset folder.
+fn fuzz_file<T>(dir: &tempfile::TempDir, name: &str, load: impl Fn() -> Result<T, DataError>) {
+    let path = dir.path().join(name);
+    let valid = std::fs::read(&path).unwrap();
+    let folder = dir.path().to_string_lossy().into_owned();
+    let mut runner = TestRunner::new(Config::with_cases(64));
+    runner
+        .run(&mutate::damaged(valid), |bytes| {
+            std::fs::write(&path, &bytes).unwrap();
+            if let Err(error) = load() {
+                let message = error.to_string();
+                assert!(message.contains(&folder), "{message}");
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+/// Damaged `train_meta.json` files never panic the Panoptic reader.
+#[test]
+fn damaged_panoptic_meta_never_panics() {
+    let dir = synthetic_panoptic();
+    fuzz_file(&dir, "train_meta.json", || panoptic::load(&source(&dir)));
+}
+
+/// Damaged `transforms_train.json` files never panic the D-NeRF reader.
+#[test]
+fn damaged_dnerf_transforms_never_panic() {
+    let dir = synthetic_dnerf();
+    fuzz_file(&dir, "transforms_train.json", || {
+        dnerf::load(&dnerf_source(&dir))
+    });
+}
+
+/// Damaged PNG images never panic the Panoptic reader.
+#[test]
+fn damaged_panoptic_image_never_panics() {
+    let dir = synthetic_panoptic();
+    fuzz_file(&dir, "ims/4/000000.png", || panoptic::load(&source(&dir)));
 }

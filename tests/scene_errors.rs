@@ -1,5 +1,8 @@
 //! Scene files: parsing with defaults, and errors that point at the file, line and field.
 
+mod mutate;
+
+use proptest::prelude::*;
 use tadgs::scene::load::{apply_overrides, set_override, validate};
 use tadgs::scene::*;
 
@@ -594,4 +597,115 @@ fn demo_scene_loads_and_takes_overrides() {
     assert_eq!(scene.floor.as_ref().map(|f| f.half_size), Some(3.0));
     assert_eq!(scene.objects[1].spin, 0.5);
     assert_eq!(c.train.iterations, 10);
+}
+
+// ---------------------------------------------------------------------------------------
+// Malformed-input corpus
+// ---------------------------------------------------------------------------------------
+
+/// Property: each malformed text below is a syntax error at the stated line that names
+/// the problem (never a panic, never a default silently used).
+#[test]
+fn malformed_scene_corpus_syntax() {
+    let cases: &[(&str, String, usize, &str)] = &[
+        (
+            "negative iterations",
+            scene_with("    train: (iterations: -5),"),
+            4,
+            "",
+        ),
+        (
+            "integer too large",
+            scene_with("    train: (iterations: 99999999999),"),
+            4,
+            "",
+        ),
+        (
+            "the Fourier term count K is not a setting",
+            scene_with("    model: (fourier_terms: 0),"),
+            4,
+            "fourier_terms",
+        ),
+        (
+            "duplicate field",
+            scene_with("    train: (seed: 1, seed: 2),"),
+            4,
+            "seed",
+        ),
+        (
+            "unclosed parenthesis (truncated file)",
+            minimal().trim_end().trim_end_matches(')').to_string(),
+            3, // the last line: where the text ends
+            "",
+        ),
+        ("empty file", String::new(), 1, ""),
+        (
+            "string where a number belongs",
+            scene_with("    model: (tow: (rho: \"high\")),"),
+            4,
+            "",
+        ),
+    ];
+    for (name, text, line, needle) in cases {
+        let (found, _, message) = expect_syntax(parse_scene(text, "scene.ron"));
+        assert_eq!(found, *line, "case `{name}`: {message}");
+        assert!(message.contains(needle), "case `{name}`: {message}");
+    }
+}
+
+/// Property: each out-of-range value below is rejected, naming its dotted field and the
+/// line it is written on.
+#[test]
+fn malformed_scene_corpus_ranges() {
+    let cases: &[(&str, &str)] = &[
+        ("model.tow.rho", "    model: (tow: (rho: 0.0)),"),
+        ("model.tow.rho", "    model: (tow: (rho: 1.0)),"),
+        ("model.tow.rho", "    model: (tow: (rho: -0.25)),"),
+        (
+            "model.tow.window_frames",
+            "    model: (tow: (window_frames: -50.0)),",
+        ),
+        ("train.lambda_dssim", "    train: (lambda_dssim: -0.1),"),
+        (
+            "densify.tat_form.beta",
+            "    densify: (tat_form: Implementation(beta: 1.5, alpha: 0.8)),",
+        ),
+        (
+            "densify.tat_form.beta",
+            "    densify: (tat_form: Paper(beta: -1.0, alpha: 1.0)),",
+        ),
+        ("init.opacity", "    init: (opacity: 0.0),"),
+    ];
+    for (field, section) in cases {
+        let (line, found, message) = expect_invalid(parse_scene(&scene_with(section), "scene.ron"));
+        assert_eq!(&found, field, "{section}: {message}");
+        assert_eq!(line, Some(4), "{section}: {message}");
+    }
+}
+
+/// Property: a scene file that is not UTF-8 is an I/O error naming the file.
+#[test]
+fn non_utf8_scene_file_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("binary.ron");
+    std::fs::write(&path, b"(name: \"\xff\xfe\")").unwrap();
+    let error = load_scene(&path).unwrap_err();
+    assert!(matches!(error, SceneError::Io { .. }), "{error:?}");
+    assert!(error.to_string().contains("binary.ron"), "{error}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Property: the demo scene's text with random damage (or random bytes) never panics
+    /// the parser, and every error it gives names the file.
+    #[test]
+    fn damaged_scene_text_never_panics(
+        bytes in mutate::damaged(include_bytes!("../scenes/demo.ron").to_vec())
+    ) {
+        let text = String::from_utf8_lossy(&bytes);
+        if let Err(error) = parse_scene(&text, "scene.ron") {
+            prop_assert!(error.to_string().starts_with("scene.ron"), "{}", error);
+        }
+    }
 }

@@ -11,7 +11,7 @@ use glam::{DMat4, DVec4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::{open_image, read_text};
+use super::error::{check_downscale, open_image, read_text};
 use super::{Camera, DataError, Dataset, View};
 use crate::io::image::box_filter;
 
@@ -134,18 +134,10 @@ pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
         .enumerate()
         .map(|(camera_index, &(is_train, frame_index, angle, frame))| {
             let rgba = open_image(&frame.image_path)?.into_rgba8();
+            check_downscale(&frame.image_path, rgba.dimensions(), source.downscale)?;
             let (image, foreground) =
                 composite_downscaled(&rgba, source.downscale, source.background);
             let (width, height) = image.dimensions();
-            if width == 0 || height == 0 {
-                return Err(DataError::Size {
-                    path: frame.image_path.clone(),
-                    width: source.downscale,
-                    height: source.downscale,
-                    found_width: rgba.width(),
-                    found_height: rgba.height(),
-                });
-            }
             let focal = (0.5 * f64::from(width) / (0.5 * angle).tan()) as f32;
             let camera = Camera {
                 width,

@@ -119,3 +119,19 @@ fn check_size(
 pub fn read_text(path: &Path) -> Result<String, DataError> {
     std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))
 }
+
+/// Checks that an image of `width × height` keeps at least one pixel after an integer
+/// `downscale`; a smaller one would give an empty image and a camera without pixels.
+pub(crate) fn check_downscale(
+    path: &Path,
+    (width, height): (u32, u32),
+    downscale: u32,
+) -> Result<(), DataError> {
+    if width < downscale || height < downscale {
+        return Err(DataError::dataset(
+            path,
+            format!("images of {width}×{height} px are too small to downscale by {downscale}"),
+        ));
+    }
+    Ok(())
+}

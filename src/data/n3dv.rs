@@ -27,7 +27,7 @@ use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::read_rgb8;
+use super::error::{check_downscale, read_rgb8};
 use super::{Camera, DataError, Dataset, View, frame_time};
 use crate::io::image::box_downscale;
 
@@ -514,20 +514,6 @@ fn load_frame_folder(
         .collect::<Result<_, _>>()?;
     images.extend(rest);
     Ok(LoadedFrames { full_size, images })
-}
-
-fn check_downscale(
-    path: &Path,
-    (width, height): (u32, u32),
-    downscale: u32,
-) -> Result<(), DataError> {
-    if width < downscale || height < downscale {
-        return Err(DataError::dataset(
-            path,
-            format!("frames of {width}×{height} px are too small to downscale by {downscale}"),
-        ));
-    }
-    Ok(())
 }
 
 // ---------------------------------------------------------------------------------------

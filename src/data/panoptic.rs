@@ -16,7 +16,7 @@ use glam::{DMat3, DMat4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::{read_mask, read_rgb8, read_text};
+use super::error::{check_downscale, read_mask, read_rgb8, read_text};
 use super::{Camera, DataError, Dataset, View, frame_time};
 use crate::io::image::box_downscale;
 
@@ -135,6 +135,9 @@ pub fn load(source: &PanopticSource) -> Result<Dataset, DataError> {
     }
     if train.timesteps.is_empty() {
         return Err(DataError::field(&train.path, "fn", "no timesteps"));
+    }
+    for meta in [&train, &test] {
+        check_downscale(&meta.path, (meta.width, meta.height), source.downscale)?;
     }
 
     let kept = kept_timesteps(train.timesteps.len(), source.frame_stride, source.frames);

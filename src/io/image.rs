@@ -131,7 +131,8 @@ where
 /// The block sums behind [`box_downscale`]: for each `factor × factor` block of `image`
 /// (edge remainders cropped), in row-major order, calls `write(sums, out)` with the
 /// per-channel sums of the block (`P::CHANNEL_COUNT` of them) and the output pixel's
-/// `Q::CHANNEL_COUNT` bytes to fill. `factor` must be at least 1.
+/// `Q::CHANNEL_COUNT` bytes to fill. `factor` must be at least 1; an image smaller than one
+/// block gives an empty image.
 pub fn box_filter<P, Q>(
     image: &image::ImageBuffer<P, Vec<u8>>,
     factor: u32,
@@ -148,6 +149,9 @@ where
     let src: &[u8] = image.as_raw();
     let src_stride = image.width() as usize * cin;
     let mut out = image::ImageBuffer::<Q, Vec<u8>>::new(width, height);
+    if width == 0 || height == 0 {
+        return out; // smaller than one block: nothing to average (and no zero-size chunks)
+    }
     let mut sums = vec![0u32; w * cin];
     for (y, out_row) in out.chunks_exact_mut(w * cout).enumerate() {
         sums.fill(0);
