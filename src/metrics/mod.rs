@@ -1,7 +1,7 @@
 //! Image quality metrics and the photometric training loss.
 //!
-//! * [`psnr`]: mean squared error and PSNR (optionally restricted to a pixel mask).
-//! * [`ssim`]: structural similarity exactly as in the 3DGS / mip-NeRF evaluation code
+//! * [`psnr`](mod@psnr): mean squared error and PSNR (optionally restricted to a pixel mask).
+//! * [`ssim`](mod@ssim): structural similarity exactly as in the 3DGS / mip-NeRF evaluation code
 //!   (11×11 Gaussian window, σ = 1.5, zero padding), with its analytic gradient.
 //! * [`eval`]: the evaluation protocol (PSNR, SSIM, LPIPS, M-PSNR, M-SSIM) and dynamic masks.
 //! * [`loss`]: the training loss `(1 − λ)·L1 + λ·(1 − SSIM)` and its gradient w.r.t. the render.

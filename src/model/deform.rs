@@ -83,7 +83,7 @@ pub fn fourier_offset_backward(
 /// Form of the temporal opacity σ(t)/σ^s.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum TemporalOpacity {
-    /// Paper: exp(−ψ·dtw²) with ψ = exp(temporal_raw[0]).
+    /// Paper: exp(−ψ·dtw²) with ψ = exp(`temporal_raw[0]`).
     Rbf,
     /// Implementation: exp(−½(dtw/w)²) with separate left (dtw < 0, `temporal_raw[0]`) and
     /// right (dtw ≥ 0, `temporal_raw[1]`) widths w = min(w_min·exp(s), 1.1).
@@ -161,9 +161,9 @@ fn temporal_factor(model: TemporalOpacity, temporal_raw: [f32; 2], dtw: f32) -> 
 }
 
 /// Opacity at time t: σ(t) = sigmoid(opacity_logit)·(σ(t)/σ^s) where the temporal factor is
-/// exp(−ψ·dtw²), ψ = exp(temporal_raw[0]) for [`TemporalOpacity::Rbf`] and
-/// exp(−½(dtw/w)²), w = min(w_min·exp(s), 1.1), s = temporal_raw[0] for dtw < 0 and
-/// temporal_raw[1] for dtw ≥ 0, for [`TemporalOpacity::Asymmetric`].
+/// exp(−ψ·dtw²), ψ = exp(`temporal_raw[0]`) for [`TemporalOpacity::Rbf`] and
+/// exp(−½(dtw/w)²), w = min(w_min·exp(s), 1.1), s = `temporal_raw[0]` for dtw < 0 and
+/// `temporal_raw[1]` for dtw ≥ 0, for [`TemporalOpacity::Asymmetric`].
 #[inline]
 pub fn temporal_opacity(
     model: TemporalOpacity,
