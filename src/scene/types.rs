@@ -291,8 +291,9 @@ pub struct TrainConfig {
     /// Weight of D-SSIM in the loss (0.2).
     pub lambda_dssim: f32,
     /// Gaussians closer to the camera than this (camera-space depth, scene units) are not
-    /// drawn (3DGS: 0.2). Rigs whose cameras sit in the captured walls (Panoptic's dome) need
-    /// more, or wall Gaussians next to a camera cover its whole view.
+    /// drawn (default 0.01, as the projection's own near plane). Rigs whose cameras sit in the
+    /// captured walls (Panoptic's dome) need more, or wall Gaussians next to a held-out camera
+    /// cover its whole view.
     pub near_plane: f32,
     /// Raise the SH degree by one every this many iterations.
     pub sh_increase_interval: u32,
@@ -309,7 +310,7 @@ impl Default for TrainConfig {
             seed: 0,
             background: [0.0; 3],
             lambda_dssim: 0.2,
-            near_plane: 0.2,
+            near_plane: 0.01,
             sh_increase_interval: 1000,
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
