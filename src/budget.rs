@@ -82,11 +82,17 @@ pub struct MemoryEstimate {
     *.available as f64 / 1e9
 )]
 pub struct BudgetError {
+    /// Initial Gaussians requested ([`MemoryEstimate::initial_gaussians`]).
     pub gaussians: u64,
+    /// Width in pixels of the largest camera, which sizes the per-pixel buffers.
     pub width: u32,
+    /// Height in pixels of the largest camera.
     pub height: u32,
+    /// Bytes the initial Gaussians and the per-pixel buffers need, beyond the loaded images.
     pub needed: u64,
+    /// Bytes available after loading the images (`MemAvailable`).
     pub available: u64,
+    /// The largest number of Gaussians that would fit in `available` bytes.
     pub fits: u64,
 }
 

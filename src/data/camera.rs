@@ -6,11 +6,19 @@ use serde::{Deserialize, Serialize};
 /// A pinhole camera: intrinsics in pixels and a world-to-camera rigid transform.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Horizontal focal length in pixels.
     pub fx: f32,
+    /// Vertical focal length in pixels.
     pub fy: f32,
+    /// Principal point x in pixels, in image coordinates where pixel column `x` spans
+    /// `[x, x + 1)` (its centre is at `x + 0.5`).
     pub cx: f32,
+    /// Principal point y in pixels, same convention as `cx` (row `y` has its centre at
+    /// `y + 0.5`).
     pub cy: f32,
     /// World-to-camera transform (OpenCV: x right, y down, +z forward).
     pub world_to_camera: Mat4,

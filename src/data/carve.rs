@@ -135,20 +135,29 @@ impl CarveSettings {
 pub enum CarveError {
     /// The dataset has no training view at the frame.
     #[error("frame {frame} has no training views")]
-    NoViews { frame: usize },
+    NoViews {
+        /// Frame index (not normalised time).
+        frame: usize,
+    },
     /// No training view at the frame has a usable foreground mask.
     #[error(
         "no training view at frame {frame} has a foreground mask of its camera's size; \
          use photo-consistency carving or random points instead"
     )]
-    NoMasks { frame: usize },
+    NoMasks {
+        /// Frame index.
+        frame: usize,
+    },
     /// Too few views to carve anything meaningful (a monocular dataset, or a tiny subset).
     #[error(
         "frame {frame} has {found} usable views, but carving needs at least min_views = {needed}"
     )]
     TooFewViews {
+        /// Frame index.
         frame: usize,
+        /// Usable views at the frame (with a mask of the camera's size, for mask carving).
         found: usize,
+        /// [`CarveSettings::min_views`].
         needed: usize,
     },
     /// Every voxel was carved away.
@@ -159,10 +168,15 @@ pub enum CarveError {
          camera) or the search region misses the subject (raise region_scale)"
     )]
     EmptyHull {
+        /// Frame index.
         frame: usize,
+        /// Masked views used for carving.
         views: usize,
+        /// Voxels tested in the grid that came out empty (the coarse grid, or the fine one).
         voxels: usize,
+        /// [`CarveSettings::agreement`].
         agreement: f32,
+        /// [`CarveSettings::min_views`].
         min_views: usize,
     },
     /// Photo-consistency carving kept nothing.
@@ -171,8 +185,11 @@ pub enum CarveError {
          {tolerance} of each other; raise colour_tolerance or lower min_views"
     )]
     NoConsistentVoxels {
+        /// Frame index.
         frame: usize,
+        /// [`CarveSettings::colour_tolerance`].
         tolerance: f32,
+        /// [`CarveSettings::min_views`].
         min_views: usize,
     },
     /// A setting is out of range.

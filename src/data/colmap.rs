@@ -22,20 +22,29 @@ use super::{Camera, DataError};
 /// An intrinsic camera of a COLMAP model (shared by the images taken with it).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColmapCamera {
+    /// COLMAP's `CAMERA_ID`.
     pub id: u32,
     /// COLMAP's model name, e.g. `PINHOLE`.
     pub model: &'static str,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Horizontal focal length in pixels (the single `f` of SIMPLE_* and RADIAL models).
     pub fx: f32,
+    /// Vertical focal length in pixels (equal to `fx` for single-focal models).
     pub fy: f32,
+    /// Principal point x in pixels (COLMAP's convention: pixel centres at +0.5, as in
+    /// [`Camera`]).
     pub cx: f32,
+    /// Principal point y in pixels.
     pub cy: f32,
 }
 
 /// A registered image: its file name and the posed camera that took it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColmapImage {
+    /// COLMAP's `IMAGE_ID`.
     pub id: u32,
     /// Image file name relative to the image folder of the reconstruction.
     pub name: String,

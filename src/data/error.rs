@@ -8,37 +8,66 @@ pub enum DataError {
     /// The file or folder could not be opened or read.
     #[error("cannot read {}: {source}", path.display())]
     Io {
+        /// The file or folder that could not be read.
         path: PathBuf,
+        /// The underlying I/O error (`NotFound` for a missing image).
         source: std::io::Error,
     },
     /// The file is not valid in its format (JSON syntax, binary layout, ...).
     #[error("{}: {message}", path.display())]
-    Format { path: PathBuf, message: String },
+    Format {
+        /// The malformed file.
+        path: PathBuf,
+        /// What is wrong, with the line or byte offset where the reader knows it.
+        message: String,
+    },
     /// A field is missing or has the wrong type, shape or value.
     #[error("{}: field `{field}`: {message}", path.display())]
     Field {
+        /// The file holding the field; the dataset folder when the field is one of the scene
+        /// file's source settings (`downscale`, `frame_stride`, ...).
         path: PathBuf,
+        /// The field's name as written in the file, with indices where it is inside an array
+        /// (e.g. `k[3][7]`).
         field: String,
+        /// What is wrong with it (`missing`, wrong shape, out of range, ...).
         message: String,
     },
     /// An image or mask could not be decoded.
     #[error("cannot decode image {}: {message}", path.display())]
-    Image { path: PathBuf, message: String },
+    Image {
+        /// The image or mask file.
+        path: PathBuf,
+        /// The decoder's error message.
+        message: String,
+    },
     /// An image or mask does not have the size its camera says.
     #[error("{}: image is {found_width}×{found_height} px, but its camera is {width}×{height}", path.display())]
     Size {
+        /// The image or mask file.
         path: PathBuf,
+        /// Expected width in pixels, at full resolution (before any downscale): the camera's, or
+        /// for an N3DV frame folder the first frame's.
         width: u32,
+        /// Expected height in pixels, at full resolution, like `width`.
         height: u32,
+        /// Width of the decoded image in pixels.
         found_width: u32,
+        /// Height of the decoded image in pixels.
         found_height: u32,
     },
     /// The dataset as a whole is unusable (no training views, ...).
     #[error("{}: {message}", path.display())]
-    Dataset { path: PathBuf, message: String },
+    Dataset {
+        /// The dataset's folder or the file that made it unusable.
+        path: PathBuf,
+        /// Why the dataset cannot be used.
+        message: String,
+    },
 }
 
 impl DataError {
+    /// A [`DataError::Io`] for `path`.
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
             path: path.to_path_buf(),
@@ -46,6 +75,7 @@ impl DataError {
         }
     }
 
+    /// A [`DataError::Format`] for `path`.
     pub fn format(path: &Path, message: impl Into<String>) -> Self {
         Self::Format {
             path: path.to_path_buf(),
@@ -53,6 +83,7 @@ impl DataError {
         }
     }
 
+    /// A [`DataError::Field`]: `field` of `path` is wrong, as `message` says.
     pub fn field(path: &Path, field: impl Into<String>, message: impl Into<String>) -> Self {
         Self::Field {
             path: path.to_path_buf(),
@@ -61,6 +92,7 @@ impl DataError {
         }
     }
 
+    /// A [`DataError::Dataset`] for the dataset at (or the file) `path`.
     pub fn dataset(path: &Path, message: impl Into<String>) -> Self {
         Self::Dataset {
             path: path.to_path_buf(),

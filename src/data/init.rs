@@ -9,7 +9,9 @@ use super::Camera;
 /// A coloured point of an initial point cloud.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InitPoint {
+    /// Position in world coordinates (the dataset's units).
     pub position: Vec3,
+    /// RGB colour, nominally in [0, 1] (8-bit sources are divided by 255).
     pub color: [f32; 3],
 }
 

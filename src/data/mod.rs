@@ -40,7 +40,7 @@ pub struct View {
 }
 
 impl View {
-    /// The image as linear `f32` RGB in [0, 1].
+    /// The image as `f32` RGB in [0, 1] (the 8-bit values divided by 255, not linearised).
     pub fn to_image(&self) -> Image {
         Image::from_rgb8(&self.image)
     }
@@ -54,6 +54,7 @@ impl View {
 /// A multi-view video held in memory: training and held-out views with their cameras.
 #[derive(Clone, Debug, Default)]
 pub struct Dataset {
+    /// Every camera of the capture, training and held-out; [`View::camera`] indexes it.
     pub cameras: Vec<Camera>,
     /// Number of frames T of the sequence (the model's time base: λ = window / T).
     pub frame_count: usize,

@@ -1,31 +1,44 @@
-//! Linear RGB float images and PNG/JPEG input/output.
+//! RGB float images (8-bit values scaled to [0, 1], no sRGB decoding) and PNG/JPEG
+//! input/output.
 
 use std::path::Path;
 
 /// An RGB image with `f32` channels in [0, 1], row-major, pixel (x, y) at `data[y * width + x]`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Image {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
+    /// `width × height` RGB pixels, row-major.
     pub data: Vec<[f32; 3]>,
 }
 
 /// Errors reading or writing image files.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
+    /// The file could not be opened or decoded ([`Image::load`]).
     #[error("cannot read image {path}: {source}")]
     Read {
+        /// The file, as displayed.
         path: String,
+        /// The decoder's (or the file system's) error.
         source: image::ImageError,
     },
+    /// The encoded PNG could not be written to the file ([`Image::save_png`]).
     #[error("cannot write image {path}: {source}")]
     Write {
+        /// The destination file, as displayed.
         path: String,
+        /// The I/O error of the temporary file or the rename.
         source: std::io::Error,
     },
+    /// The image could not be encoded as PNG ([`Image::save_png`]).
     #[error("cannot encode image {path}: {source}")]
     Encode {
+        /// The destination file, as displayed.
         path: String,
+        /// The encoder's error.
         source: image::ImageError,
     },
 }

@@ -20,10 +20,15 @@ use crate::io::image::{Image, ImageError};
 /// The metrics of one held-out view.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ViewScores {
+    /// Index of the view's camera in [`Dataset::cameras`].
     pub camera: usize,
+    /// Frame index of the view.
     pub frame: usize,
+    /// Normalised time of the view in [0, 1].
     pub time: f32,
+    /// PSNR in dB over the whole image (peak 1); infinite for a pixel-exact render.
     pub psnr: f32,
+    /// SSIM over the whole image (11×11 Gaussian window, σ = 1.5).
     pub ssim: f32,
     /// LPIPS (AlexNet); None when no LPIPS weights were given.
     pub lpips: Option<f32>,
@@ -38,16 +43,24 @@ pub struct ViewScores {
 /// Means over the views (masked means over the views that have a non-empty mask).
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct ScoreSummary {
+    /// Number of views scored.
     pub views: usize,
+    /// Mean PSNR in dB over the views with a finite PSNR; None when there is none.
     pub psnr: Option<f32>,
+    /// Mean SSIM; None without views.
     pub ssim: Option<f32>,
+    /// Mean LPIPS (AlexNet); None when no view has an LPIPS score.
     pub lpips: Option<f32>,
+    /// Number of views with a non-empty dynamic mask (those the masked means cover).
     pub masked_views: usize,
+    /// Mean M-PSNR in dB over the masked views with a finite M-PSNR.
     pub masked_psnr: Option<f32>,
+    /// Mean M-SSIM over the masked views.
     pub masked_ssim: Option<f32>,
 }
 
 impl ScoreSummary {
+    /// The means of `scores`, each over the finite values it has.
     pub fn of(scores: &[ViewScores]) -> Self {
         Self {
             views: scores.len(),
@@ -121,19 +134,29 @@ pub struct MaskSource {
 /// A mask folder could not be read or written.
 #[derive(Debug, thiserror::Error)]
 pub enum MaskError {
+    /// A mask PNG could not be read, or a computed mask could not be written.
     #[error(transparent)]
     Image(#[from] ImageError),
+    /// A mask PNG in the folder does not have the size of its view's image.
     #[error("mask {}: {width}×{height} px, but the view is {expected_width}×{expected_height}", path.display())]
     Size {
+        /// The mask file.
         path: PathBuf,
+        /// Width of the mask in pixels.
         width: usize,
+        /// Height of the mask in pixels.
         height: usize,
+        /// Width of the view's image in pixels.
         expected_width: usize,
+        /// Height of the view's image in pixels.
         expected_height: usize,
     },
+    /// The mask folder could not be created (only attempted when masks are computed).
     #[error("cannot create mask folder {}: {source}", path.display())]
     Folder {
+        /// The mask folder.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
 }

@@ -18,12 +18,16 @@ pub struct SceneConfig {
     pub name: String,
     /// Where the multi-view video comes from.
     pub data: DataSource,
+    /// How the initial Gaussians are made (the `init:` block).
     #[serde(default)]
     pub init: InitConfig,
+    /// The deformation model (the `model:` block).
     #[serde(default)]
     pub model: ModelConfig,
+    /// Densification schedule and criteria (the `densify:` block).
     #[serde(default)]
     pub densify: DensifyConfig,
+    /// Optimisation schedule, loss and learning rates (the `train:` block).
     #[serde(default)]
     pub train: TrainConfig,
     /// Output directory for renders and reports (relative to the working directory).
@@ -123,7 +127,9 @@ pub enum OpacityModel {
 /// Fourier phase: one per Gaussian (paper) or one per frequency (implementation).
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
 pub enum PhaseModel {
+    /// One phase φ shared by the K frequencies of a Gaussian (paper, the default).
     PerGaussian,
+    /// A separate phase for each frequency (authors' implementation).
     PerFrequency,
 }
 
@@ -131,8 +137,10 @@ pub enum PhaseModel {
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct TowConfig {
+    /// Apply the warp; false uses the identity W(Δt) = Δt (ablation baseline).
     pub enabled: bool,
-    /// Focus window in frames; λ = window_frames / T.
+    /// Focus window in frames; λ = window_frames / T. When λ ≥ 1 (a sequence no longer than
+    /// the window) the warp falls back to the identity.
     pub window_frames: f32,
     /// Fraction of the temporal capacity inside the window (paper 0.75, implementation 0.7).
     pub rho: f32,
@@ -154,10 +162,13 @@ impl Default for TowConfig {
 pub struct ModelConfig {
     /// Highest SH degree (0..=3).
     pub sh_degree: u32,
+    /// Form of the temporal opacity σ(t).
     pub opacity: OpacityModel,
+    /// Whether the Fourier phase is per Gaussian or per frequency.
     pub phase: PhaseModel,
     /// Scale polynomial of degree 1 (paper); false keeps the scale constant (implementation).
     pub scale_motion: bool,
+    /// Temporal Offset Warping.
     pub tow: TowConfig,
 }
 
@@ -178,9 +189,19 @@ impl Default for ModelConfig {
 #[serde(deny_unknown_fields)]
 pub enum TatForm {
     /// Paper: τ·(1 / (1 + β(1 − ψ̄)))^α.
-    Paper { beta: f32, alpha: f32 },
+    Paper {
+        /// β ≥ 0: how much a short lifespan lowers the threshold (default 0.3).
+        beta: f32,
+        /// Exponent α > 0 (default 1).
+        alpha: f32,
+    },
     /// Implementation: τ·(β + (1 − β)·ψ̄^α).
-    Implementation { beta: f32, alpha: f32 },
+    Implementation {
+        /// β in [0, 1]: the threshold factor at lifespan 0 (the implementation uses 0.75).
+        beta: f32,
+        /// Exponent α > 0 on ψ̄ (the implementation uses 0.8).
+        alpha: f32,
+    },
 }
 
 /// Densification schedule and criteria.
@@ -193,17 +214,26 @@ pub struct DensifyConfig {
     pub vad_min_opacity: Option<f32>,
     /// Temporally adaptive threshold.
     pub tat: bool,
+    /// Formula of the TAT threshold (used when `tat` is on).
     pub tat_form: TatForm,
     /// Base threshold on the NDC-space 2D mean gradient (3DGS: 2e-4).
     pub grad_threshold: f32,
     /// Clone if max scale ≤ this fraction of the scene extent, else split.
     pub percent_dense: f32,
+    /// Densify and prune every this many iterations (must be > 0).
     pub interval: u32,
+    /// Densification steps happen only at iterations strictly after this one.
     pub from_iter: u32,
+    /// Last iteration (inclusive) at which gradient statistics are gathered, densification
+    /// runs and opacities are reset.
     pub until_iter: u32,
+    /// Cap every spatial opacity at 0.01 every this many iterations (up to `until_iter`);
+    /// 0 disables the reset.
     pub opacity_reset_interval: u32,
+    /// Prune Gaussians whose spatial opacity σ^s (after the sigmoid, in [0, 1)) is below this.
     pub prune_opacity: f32,
-    /// Also prune Gaussians whose screen radius > 20 px or world scale > 0.1·extent.
+    /// Also prune Gaussians whose screen radius > 20 px or world scale > 0.1·extent (only
+    /// after the first `opacity_reset_interval` iterations, as in 3DGS).
     pub prune_big: bool,
     /// Upper bound on the population; densification stops growing at the cap.
     pub max_gaussians: usize,
@@ -244,12 +274,20 @@ pub struct LearningRates {
     pub fourier_cos_sin: f32,
     /// Fourier phase: this fraction of the current position lr.
     pub fourier_phase: f32,
+    /// Temporal scale (raw values: log ψ for the RBF opacity, the left/right width
+    /// parameters s of the asymmetric form).
     pub temporal_scale: f32,
+    /// Spatial opacity σ^s, on its logit.
     pub opacity: f32,
+    /// Rotation quaternion constant term c_0.
     pub rotation: f32,
+    /// Rotation quaternion linear term c_1 (per unit of warped normalised time).
     pub rotation_velocity: f32,
+    /// Log-scale constant term d_0.
     pub scale: f32,
+    /// Log-scale linear term d_1 (ignored while `model.scale_motion` is false).
     pub scale_velocity: f32,
+    /// SH DC (degree-0) coefficients.
     pub sh_dc: f32,
     /// Higher SH bands use sh_dc divided by this.
     pub sh_rest_divisor: f32,
@@ -277,6 +315,7 @@ impl Default for LearningRates {
 /// Which backend runs splatting.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
 pub enum BackendKind {
+    /// The tile rasterizer on the CPU (rayon), forward and backward.
     Cpu,
 }
 
@@ -284,7 +323,9 @@ pub enum BackendKind {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrainConfig {
+    /// Training iterations, one view each (also the horizon of the position lr decay).
     pub iterations: u32,
+    /// Seed of the random numbers: initial points, view sampling and splits.
     pub seed: u64,
     /// Background colour the renders are composited over.
     pub background: [f32; 3],
@@ -297,7 +338,9 @@ pub struct TrainConfig {
     pub near_plane: f32,
     /// Raise the SH degree by one every this many iterations.
     pub sh_increase_interval: u32,
+    /// Learning rates per parameter group.
     pub lr: LearningRates,
+    /// Which backend renders and back-propagates.
     pub backend: BackendKind,
     /// Print an evaluation line every this many iterations (0 = only at the end).
     pub eval_interval: u32,
