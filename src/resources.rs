@@ -37,6 +37,13 @@ impl Settings {
     /// Resolves a scene's settings for a sequence of `frame_count` frames with the given extent.
     pub fn new(scene: &SceneConfig, frame_count: usize, extent: f32) -> Self {
         let tow = scene.model.tow;
+        if tow.enabled && tow.window_frames >= frame_count as f32 {
+            tracing::warn!(
+                "model.tow.window_frames = {} covers all {frame_count} frames: the warp is the \
+                 identity, so TOW has no effect on this sequence",
+                tow.window_frames
+            );
+        }
         let warp = if tow.enabled {
             TimeWarp::tow(tow.window_frames, frame_count, tow.rho)
         } else {
