@@ -87,7 +87,10 @@ fn main() -> Result<()> {
     let o = run(iterations)?;
     println!("{} iterations", o.iterations);
     println!("Gaussians: {} spawned, {} alive", o.spawned, o.alive);
-    println!("loss: {:.4} (first 10) → {:.4} (last 10)", o.early_loss, o.late_loss);
+    println!(
+        "loss: {:.4} (first 10) → {:.4} (last 10)",
+        o.early_loss, o.late_loss
+    );
     println!("mean opacity: {:.3}", o.mean_opacity);
     Ok(())
 }

@@ -125,6 +125,38 @@ impl Rng {
     }
 }
 
+/// A NaN or infinity found by the numeric guard (`systems::guard`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Fault {
+    /// The iteration whose backward pass produced it.
+    pub iteration: u32,
+    /// The parameter group whose gradient is not finite (`"loss"` for the loss itself).
+    pub group: &'static str,
+    /// Index (in query order) of the first Gaussian with a non-finite gradient in that group.
+    pub gaussian: Option<usize>,
+}
+
+impl std::fmt::Display for Fault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.gaussian {
+            Some(i) => write!(
+                f,
+                "iteration {}: non-finite gradient of the {} parameters (Gaussian #{i})",
+                self.iteration, self.group
+            ),
+            None => write!(
+                f,
+                "iteration {}: the {} is not finite",
+                self.iteration, self.group
+            ),
+        }
+    }
+}
+
+/// The first numeric fault of the run, if any; while set, Adam and densification are skipped.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct NumericFault(pub Option<Fault>);
+
 /// Which backend runs the splatting stage.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Backend {

@@ -54,6 +54,7 @@ pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dat
     world.insert_resource(ViewOrder::default());
     world.insert_resource(Rng::seeded(scene.train.seed));
     world.insert_resource(LossImage::default());
+    world.insert_resource(NumericFault::default());
 }
 
 /// Inserts the resources the render stages (time warp, deformation, splatting) read, for a
@@ -304,6 +305,12 @@ impl Trainer {
     /// Runs one training iteration.
     pub fn step(&mut self) {
         self.train.run(&mut self.world);
+    }
+
+    /// The numeric fault that stopped the optimisation, if any: once set, further steps
+    /// leave every parameter as it is.
+    pub fn fault(&self) -> Option<Fault> {
+        self.world.resource::<NumericFault>().0
     }
 
     /// Counters of the run.

@@ -10,6 +10,7 @@ pub mod backward;
 pub mod deform;
 pub mod densify;
 pub mod describe;
+pub mod guard;
 pub mod loss;
 pub mod sample_view;
 pub mod splat;
@@ -58,6 +59,8 @@ pub fn add_training_systems(schedule: &mut Schedule) {
     );
     add_render_systems(schedule);
     add_gradient_systems(schedule);
+    // A NaN or infinity found after the backward pass must not reach the parameters.
+    schedule.configure_sets((Adam, Densify).run_if(guard::healthy));
     schedule.add_systems(adam::adam_systems().in_set(Adam));
     schedule.add_systems(densify::densify_systems().in_set(Densify));
 }
@@ -85,7 +88,11 @@ pub fn add_backward_systems(schedule: &mut Schedule) {
     use TrainSet::*;
     schedule.configure_sets((Splat, Loss, Backward).chain());
     schedule.add_systems(
-        (backward::backward_splats, backward::backward_parameters)
+        (
+            backward::backward_splats,
+            backward::backward_parameters,
+            guard::check_gradients,
+        )
             .chain()
             .in_set(Backward),
     );

@@ -41,7 +41,10 @@ pub fn splat(
 /// The splat of one deformed Gaussian; invisible when culled (nearer than `near_plane`, off
 /// screen or with σ(t) below 1/255).
 pub fn project_splat(d: &Deformed, camera: &crate::data::Camera, near_plane: f32) -> Splat {
-    let depth = camera.world_to_camera.transform_point3(Vec3::from_array(d.mean)).z;
+    let depth = camera
+        .world_to_camera
+        .transform_point3(Vec3::from_array(d.mean))
+        .z;
     if !(depth >= near_plane) {
         return Splat::default();
     }
