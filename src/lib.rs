@@ -2,6 +2,7 @@
 
 pub mod components;
 pub mod data;
+pub mod gpu;
 pub mod io;
 pub mod metrics;
 pub mod model;
