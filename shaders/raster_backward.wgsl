@@ -1,7 +1,7 @@
-// Backward blending: one 16×16 workgroup per tile walks the tile's entries back to front;
-// every pixel computes its share of an entry's gradient and the workgroup sums the shares in
-// workgroup memory, so each (tile, splat) entry gets one partial gradient without float
-// atomics. Deterministic, and the same arithmetic as the CPU reference's `backward_tile`.
+// Backward blending: one 16×16 workgroup per tile walks the tile's entries back to front and
+// every pixel computes its share of each entry's gradient, with the same arithmetic as the CPU
+// reference's `backward_tile`. What becomes of the shares is `add_shares`, defined by one of
+// raster_backward_tiles.wgsl (portable) or raster_backward_atomic.wgsl (float atomics).
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> splats: array<Splat>;
@@ -11,13 +11,11 @@
 @group(0) @binding(5) var<storage, read> contributors: array<u32>;
 // dL/d(pixel colour), row-major, three floats per pixel.
 @group(0) @binding(6) var<storage, read> d_color: array<f32>;
-// Per sorted entry: dL/d(mean.x, mean.y, conic.a, conic.b, conic.c, opacity, r, g, b).
-@group(0) @binding(7) var<storage, read_write> entry_grads: array<f32>;
 
+// Gradient fields: dL/d(mean.x, mean.y, conic.a, conic.b, conic.c, opacity, r, g, b).
 const FIELDS: u32 = 9u;
 
 var<workgroup> batch: array<Splat, TILE_PIXELS>;
-var<workgroup> shares: array<f32, 2304>; // FIELDS × TILE_PIXELS
 var<workgroup> max_contributor: atomic<u32>;
 var<workgroup> last_entry: u32;
 
@@ -106,30 +104,10 @@ fn backward(
                     }
                 }
             }
-            shares[li] = g_mean.x;
-            shares[TILE_PIXELS + li] = g_mean.y;
-            shares[2u * TILE_PIXELS + li] = g_conic.x;
-            shares[3u * TILE_PIXELS + li] = g_conic.y;
-            shares[4u * TILE_PIXELS + li] = g_conic.z;
-            shares[5u * TILE_PIXELS + li] = g_opacity;
-            shares[6u * TILE_PIXELS + li] = g_color.x;
-            shares[7u * TILE_PIXELS + li] = g_color.y;
-            shares[8u * TILE_PIXELS + li] = g_color.z;
-            for (var stride = TILE_PIXELS / 2u; stride > 0u; stride /= 2u) {
-                workgroupBarrier();
-                if li < stride {
-                    for (var field = 0u; field < FIELDS; field++) {
-                        let a = field * TILE_PIXELS + li;
-                        shares[a] += shares[a + stride];
-                    }
-                }
-            }
-            workgroupBarrier();
-            if li < FIELDS {
-                entry_grads[FIELDS * (start + k) + li] = shares[li * TILE_PIXELS];
-            }
-            // The next entry overwrites the shares only after every reader is done.
-            workgroupBarrier();
+            add_shares(li, start + k, array<f32, FIELDS>(
+                g_mean.x, g_mean.y, g_conic.x, g_conic.y, g_conic.z, g_opacity,
+                g_color.x, g_color.y, g_color.z,
+            ));
         }
         batch_end = batch_start;
     }

@@ -33,8 +33,9 @@ pub struct GpuContext {
 
 impl GpuContext {
     /// Opens the preferred adapter (`WGPU_BACKEND` and `WGPU_POWER_PREF` choose, as in wgpu),
-    /// with the adapter's own limits so large scenes fit.
-    pub fn new() -> Result<Self, GpuError> {
+    /// with the adapter's own limits so large scenes fit, and with SHADER_FLOAT32_ATOMIC when
+    /// `float_atomics` is asked for and the adapter offers it.
+    pub fn new(float_atomics: bool) -> Result<Self, GpuError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter =
@@ -48,9 +49,15 @@ impl GpuContext {
         let info = adapter.get_info();
         // The adapter's own limits: the largest buffers and the most bindings it offers.
         let required_limits = adapter.limits();
+        let required_features = if float_atomics {
+            adapter.features() & wgpu::Features::SHADER_FLOAT32_ATOMIC
+        } else {
+            wgpu::Features::empty()
+        };
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("tadgs"),
             required_limits,
+            required_features,
             ..Default::default()
         }))
         .map_err(|source| GpuError::Device {

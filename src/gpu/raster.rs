@@ -40,9 +40,15 @@ const FORWARD_WGSL: &str = concat!(
     include_str!("../../shaders/raster_common.wgsl"),
     include_str!("../../shaders/raster_forward.wgsl")
 );
-const BACKWARD_WGSL: &str = concat!(
+const BACKWARD_TILES_WGSL: &str = concat!(
     include_str!("../../shaders/raster_common.wgsl"),
-    include_str!("../../shaders/raster_backward.wgsl")
+    include_str!("../../shaders/raster_backward.wgsl"),
+    include_str!("../../shaders/raster_backward_tiles.wgsl")
+);
+const BACKWARD_ATOMIC_WGSL: &str = concat!(
+    include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_backward.wgsl"),
+    include_str!("../../shaders/raster_backward_atomic.wgsl")
 );
 const REDUCE_WGSL: &str = include_str!("../../shaders/raster_reduce.wgsl");
 
@@ -51,6 +57,9 @@ pub struct GpuRasterizer {
     gpu: GpuContext,
     forward: wgpu::ComputePipeline,
     backward: wgpu::ComputePipeline,
+    /// Whether `backward` adds into the splat gradients with float atomics (else it writes
+    /// per-entry partial sums that `reduce` adds up).
+    atomics: bool,
     reduce: wgpu::ComputePipeline,
     /// Tile binning and depth sort (on the CPU).
     bins: TileBins,
@@ -75,12 +84,20 @@ pub struct GpuRasterizer {
 }
 
 impl GpuRasterizer {
-    /// Opens the default GPU (see [`GpuContext::new`]) and builds the pipelines.
+    /// Opens the default GPU (see [`GpuContext::new`]) and builds the pipelines, with the
+    /// float-atomic backward where the adapter offers SHADER_FLOAT32_ATOMIC.
     pub fn new() -> Result<Self, GpuError> {
-        Ok(Self::with_context(GpuContext::new()?))
+        Ok(Self::with_context(GpuContext::new(true)?))
     }
 
-    /// Builds the pipelines on an open device.
+    /// [`GpuRasterizer::new`] with the portable backward (per-tile partial sums and a
+    /// reduction) whatever the adapter offers.
+    pub fn portable() -> Result<Self, GpuError> {
+        Ok(Self::with_context(GpuContext::new(false)?))
+    }
+
+    /// Builds the pipelines on an open device; the backward uses float atomics when the
+    /// device was opened with SHADER_FLOAT32_ATOMIC.
     pub fn with_context(gpu: GpuContext) -> Self {
         let device = &gpu.device;
         let pipeline = |label: &str, source: &str, entry: &str| {
@@ -98,7 +115,14 @@ impl GpuRasterizer {
             })
         };
         let forward = pipeline("raster_forward", FORWARD_WGSL, "forward");
-        let backward = pipeline("raster_backward", BACKWARD_WGSL, "backward");
+        let atomics = device
+            .features()
+            .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let backward = if atomics {
+            pipeline("raster_backward_atomic", BACKWARD_ATOMIC_WGSL, "backward")
+        } else {
+            pipeline("raster_backward_tiles", BACKWARD_TILES_WGSL, "backward")
+        };
         let reduce = pipeline("raster_reduce", REDUCE_WGSL, "reduce");
         use wgpu::BufferUsages as U;
         let storage = U::STORAGE | U::COPY_DST | U::COPY_SRC;
@@ -119,6 +143,7 @@ impl GpuRasterizer {
             staging: GrowBuffer::new(device, "staging", U::MAP_READ | U::COPY_DST),
             forward,
             backward,
+            atomics,
             reduce,
             gpu,
             bins: TileBins::default(),
@@ -129,9 +154,19 @@ impl GpuRasterizer {
         }
     }
 
-    /// The adapter in use, for reports.
+    /// The adapter in use and the backward's summation, for reports.
     pub fn describe(&self) -> String {
-        self.gpu.describe()
+        let sums = if self.atomics {
+            "float atomics"
+        } else {
+            "per-tile sums"
+        };
+        format!("{}, backward with {sums}", self.gpu.describe())
+    }
+
+    /// Whether the backward uses float atomics (the fast path) rather than per-tile sums.
+    pub fn uses_float_atomics(&self) -> bool {
+        self.atomics
     }
 
     /// Number of (tile, splat) pairs in the last forward pass.
@@ -221,52 +256,61 @@ impl GpuRasterizer {
         let gpu = &self.gpu;
         let entries = self.bins.entry_count();
         self.d_color.upload(gpu, d_color);
-        self.splat_offsets.upload(gpu, self.bins.splat_offsets());
-        self.sorted_position.upload(gpu, &self.bins.sorted_position);
         let entry_bytes = (entries * FIELDS * 4) as u64;
-        self.entry_grads.reserve(&gpu.device, entry_bytes);
+        if !self.atomics {
+            self.splat_offsets.upload(gpu, self.bins.splat_offsets());
+            self.sorted_position.upload(gpu, &self.bins.sorted_position);
+            self.entry_grads.reserve(&gpu.device, entry_bytes);
+        }
         let grad_bytes = (splats.len() * FIELDS * 4) as u64;
         self.splat_grads.reserve(&gpu.device, grad_bytes);
         self.staging.reserve(&gpu.device, grad_bytes);
 
-        let backward = bind(
-            gpu,
-            &self.backward,
-            &[
-                &self.params,
-                &self.splats,
-                &self.sorted_splats,
-                &self.tile_offsets,
-                &self.final_transmittance,
-                &self.contributors,
-                &self.d_color,
-                &self.entry_grads,
-            ],
-        );
-        let reduce = bind(
-            gpu,
-            &self.reduce,
-            &[
-                &self.splat_offsets,
-                &self.sorted_position,
-                &self.entry_grads,
-                &self.splat_grads,
-            ],
-        );
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        // Entries behind every pixel's last contributor get no share: they stay zero.
-        if entry_bytes > 0 {
-            encoder.clear_buffer(&self.entry_grads.buffer, 0, Some(entry_bytes));
+        // The shared bindings 0–6; binding 7 is what the shares are summed into.
+        let mut bindings = vec![
+            &self.params,
+            &self.splats,
+            &self.sorted_splats,
+            &self.tile_offsets,
+            &self.final_transmittance,
+            &self.contributors,
+            &self.d_color,
+        ];
+        if self.atomics {
+            bindings.push(&self.splat_grads);
+            if grad_bytes > 0 {
+                encoder.clear_buffer(&self.splat_grads.buffer, 0, Some(grad_bytes));
+            }
+            let backward = bind(gpu, &self.backward, &bindings);
+            dispatch(&mut encoder, &self.backward, &backward, self.tiles);
+        } else {
+            bindings.push(&self.entry_grads);
+            // Entries behind every pixel's last contributor get no share: they stay zero.
+            if entry_bytes > 0 {
+                encoder.clear_buffer(&self.entry_grads.buffer, 0, Some(entry_bytes));
+            }
+            let backward = bind(gpu, &self.backward, &bindings);
+            dispatch(&mut encoder, &self.backward, &backward, self.tiles);
+            let reduce = bind(
+                gpu,
+                &self.reduce,
+                &[
+                    &self.splat_offsets,
+                    &self.sorted_position,
+                    &self.entry_grads,
+                    &self.splat_grads,
+                ],
+            );
+            let groups = (splats.len() as u32).div_ceil(REDUCE_GROUP);
+            let across = groups.min(MAX_GROUPS);
+            dispatch(
+                &mut encoder,
+                &self.reduce,
+                &reduce,
+                (across, groups.div_ceil(across.max(1))),
+            );
         }
-        dispatch(&mut encoder, &self.backward, &backward, self.tiles);
-        let groups = (splats.len() as u32).div_ceil(REDUCE_GROUP);
-        let across = groups.min(MAX_GROUPS);
-        dispatch(
-            &mut encoder,
-            &self.reduce,
-            &reduce,
-            (across, groups.div_ceil(across.max(1))),
-        );
         if grad_bytes > 0 {
             encoder.copy_buffer_to_buffer(
                 &self.splat_grads.buffer,

@@ -1,0 +1,17 @@
+
+// Fast path where the adapter offers SHADER_FLOAT32_ATOMIC: each pixel adds its non-zero
+// shares straight into the splat's gradient, with no workgroup barriers and no reduction pass.
+// The order of the additions varies from run to run.
+
+// Per splat: the gradient fields (zeroed before the pass).
+@group(0) @binding(7) var<storage, read_write> splat_grads: array<atomic<f32>>;
+
+fn add_shares(li: u32, entry: u32, values: array<f32, FIELDS>) {
+    var share = values; // a variable, so it can be indexed dynamically
+    let base = FIELDS * sorted_splats[entry];
+    for (var field = 0u; field < FIELDS; field++) {
+        if share[field] != 0.0 {
+            atomicAdd(&splat_grads[base + field], share[field]);
+        }
+    }
+}
