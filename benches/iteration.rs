@@ -95,7 +95,7 @@ fn world_with(n: usize) -> World {
     config.densify.until_iter = 0; // no densification
     config.densify.opacity_reset_interval = 0;
     let mut world = World::new();
-    insert_resources(&mut world, &config, Arc::new(dataset));
+    insert_resources(&mut world, &config, Arc::new(dataset)).expect("CPU backend");
     world.spawn_batch(
         benchmark_gaussians(n, 42)
             .into_iter()

@@ -123,6 +123,8 @@ impl Rng {
 pub enum Backend {
     #[default]
     Cpu,
+    /// Blending runs on the [`crate::gpu::GpuRasterizer`] resource.
+    Gpu,
 }
 
 /// Gradient of the loss with respect to a deformed Gaussian (at the current time).

@@ -52,7 +52,9 @@ const BACKWARD_ATOMIC_WGSL: &str = concat!(
 );
 const REDUCE_WGSL: &str = include_str!("../../shaders/raster_reduce.wgsl");
 
-/// GPU rasterizer state: device, pipelines and buffers reused across iterations.
+/// GPU rasterizer state: device, pipelines and buffers reused across iterations. As a
+/// resource it makes the splat and backward stages blend on the GPU.
+#[derive(bevy_ecs::resource::Resource)]
 pub struct GpuRasterizer {
     gpu: GpuContext,
     forward: wgpu::ComputePipeline,

@@ -277,7 +277,10 @@ impl Default for LearningRates {
 /// Which backend runs splatting.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
 pub enum BackendKind {
+    /// The CPU tile rasterizer (rayon): the reference.
     Cpu,
+    /// Forward and backward blending on a GPU through wgpu (Vulkan, Metal, DX12, GL).
+    Gpu,
 }
 
 /// Optimisation schedule.
