@@ -171,3 +171,31 @@ fn gpu_backend_trains_like_cpu_backend() {
         psnr[1]
     );
 }
+
+/// `tadgs train --backend gpu` where no adapter exists (wgpu limited to a backend this
+/// platform lacks) fails with one line that says so and suggests the CPU backend, after
+/// recording the chosen backend in the run's scene.ron.
+#[cfg(target_os = "linux")]
+#[test]
+fn gpu_backend_without_adapter_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let (config, _) = small_scene();
+    let scene = dir.path().join("small.ron");
+    let text = ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default()).unwrap();
+    std::fs::write(&scene, text).unwrap();
+    let run = dir.path().join("run");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args(["-q", "train", scene.to_str().unwrap(), "--backend", "gpu"])
+        .args(["--output", run.to_str().unwrap()])
+        .env("WGPU_BACKEND", "metal")
+        .output()
+        .expect("the tadgs binary runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("no GPU adapter found") && stderr.contains("backend: Cpu"),
+        "{stderr}"
+    );
+    let saved = std::fs::read_to_string(run.join("scene.ron")).unwrap();
+    assert!(saved.contains("backend: Gpu"), "{saved}");
+}
