@@ -12,9 +12,12 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use tadgs::components::*;
 use tadgs::data::{Camera, Dataset};
+use tadgs::gpu::{GpuError, GpuRasterizer};
 use tadgs::io::image::Image;
 use tadgs::model::deform::logit;
 use tadgs::model::sh::rgb_to_sh_dc;
+use tadgs::raster::{Rasterizer, RenderOutput};
+use tadgs::resources::SplatBuffers;
 use tadgs::scene::{BackendKind, DataSource, SceneConfig};
 use tadgs::systems::training_schedule;
 use tadgs::train::insert_resources;
@@ -132,5 +135,52 @@ fn bench_iteration(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_iteration);
+/// Blending alone (forward + backward, the splats of the benchmark population at 640×360) on
+/// the CPU rasterizer and on each GPU backward path.
+fn bench_blending(c: &mut Criterion) {
+    let n = 100_000;
+    let Some(mut world) = world_with(n, BackendKind::Cpu) else {
+        return;
+    };
+    tadgs::systems::render_schedule().run(&mut world);
+    let splats = world.resource::<SplatBuffers>().splats.clone();
+    let (width, height) = (WIDTH as usize, HEIGHT as usize);
+    let d_color = vec![[1e-3f32, -2e-3, 5e-4]; width * height];
+    let mut out = RenderOutput::default();
+    let mut grads = Vec::new();
+    let mut group = c.benchmark_group("blend_forward_backward_640x360");
+    group.sample_size(10);
+    let mut cpu = Rasterizer::new();
+    group.bench_function(format!("{n}_gaussians_cpu"), |b| {
+        b.iter(|| {
+            cpu.forward(&splats, width, height, [0.0; 3], &mut out);
+            cpu.backward(&splats, &d_color, width, &mut grads);
+        })
+    });
+    let open: [(&str, fn() -> Result<GpuRasterizer, GpuError>); 2] = [
+        ("gpu_default", GpuRasterizer::new),
+        ("gpu_tile_sums", GpuRasterizer::portable),
+    ];
+    for (name, open) in open {
+        let mut gpu = match open() {
+            Ok(gpu) => gpu,
+            Err(e) => {
+                eprintln!("skipping {name}: {e}");
+                continue;
+            }
+        };
+        eprintln!("{name}: {}", gpu.describe());
+        group.bench_function(format!("{n}_gaussians_{name}"), |b| {
+            b.iter(|| {
+                gpu.forward(&splats, width, height, [0.0; 3], &mut out)
+                    .expect("GPU forward");
+                gpu.backward(&splats, &d_color, &mut grads)
+                    .expect("GPU backward");
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_iteration, bench_blending);
 criterion_main!(benches);
