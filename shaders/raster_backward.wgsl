@@ -15,45 +15,30 @@
 // Gradient fields: dL/d(mean.x, mean.y, conic.a, conic.b, conic.c, opacity, r, g, b).
 const FIELDS: u32 = 9u;
 
-var<workgroup> batch: array<Splat, TILE_PIXELS>;
-var<workgroup> max_contributor: atomic<u32>;
-var<workgroup> last_entry: u32;
-
 @compute @workgroup_size(16, 16)
 fn backward(
     @builtin(workgroup_id) wg: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
     @builtin(local_invocation_index) li: u32,
 ) {
-    let tile = wg.y * params.tiles_x + wg.x;
-    let origin = wg.xy * TILE;
-    let pixel = origin + lid.xy;
-    let inside = pixel.x < params.width && pixel.y < params.height;
-    let start = tile_offsets[tile];
+    let at = tile_pixel(wg, lid);
+    let origin = at.origin;
+    let start = tile_offsets[at.tile];
 
     var transmittance = 0.0;
     var final_t = 0.0;
     var d_pixel = vec3<f32>(0.0);
     var bg_dot = 0.0;
     var contributor = 0u;
-    if inside {
-        let p = pixel.y * params.width + pixel.x;
+    if at.inside {
+        let p = at.pixel.y * params.width + at.pixel.x;
         final_t = final_transmittance[p];
         transmittance = final_t;
         d_pixel = vec3<f32>(d_color[3u * p], d_color[3u * p + 1u], d_color[3u * p + 2u]);
         bg_dot = dot(params.background.xyz, d_pixel);
         contributor = contributors[p];
     }
-    if li == 0u {
-        atomicStore(&max_contributor, 0u);
-    }
-    workgroupBarrier();
-    atomicMax(&max_contributor, contributor);
-    workgroupBarrier();
-    if li == 0u {
-        last_entry = atomicLoad(&max_contributor);
-    }
-    var batch_end = workgroupUniformLoad(&last_entry);
+    var batch_end = workgroup_max(li, contributor);
 
     // Colour of everything behind the current entry, and the entry behind it.
     var accum = vec3<f32>(0.0);

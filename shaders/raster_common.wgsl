@@ -24,6 +24,46 @@ struct Params {
     background: vec4<f32>,
 }
 
+// A batch of a tile's splats, staged in workgroup memory by the blending kernels.
+var<workgroup> batch: array<Splat, TILE_PIXELS>;
+var<workgroup> max_slot: atomic<u32>;
+var<workgroup> max_result: u32;
+
+// The pixel of one invocation of a 16×16 blending workgroup: one workgroup per tile.
+struct TilePixel {
+    tile: u32,
+    origin: vec2<u32>,
+    pixel: vec2<u32>,
+    // Inside the image (edge tiles overhang it).
+    inside: bool,
+}
+
+fn tile_pixel(wg: vec3<u32>, lid: vec3<u32>) -> TilePixel {
+    let origin = wg.xy * TILE;
+    let pixel = origin + lid.xy;
+    return TilePixel(
+        wg.y * params.tiles_x + wg.x,
+        origin,
+        pixel,
+        pixel.x < params.width && pixel.y < params.height,
+    );
+}
+
+// The largest `value` over the workgroup, as a workgroup-uniform value (so loops may depend on
+// it around barriers). Every invocation must call it.
+fn workgroup_max(li: u32, value: u32) -> u32 {
+    if li == 0u {
+        atomicStore(&max_slot, 0u);
+    }
+    workgroupBarrier();
+    atomicMax(&max_slot, value);
+    workgroupBarrier();
+    if li == 0u {
+        max_result = atomicLoad(&max_slot);
+    }
+    return workgroupUniformLoad(&max_result);
+}
+
 // e^x for x ≤ 0 by the reference's power-of-two split and degree-6 polynomial, so GPU and CPU
 // agree to rounding (WGSL's exp has implementation-defined precision).
 fn exp_falloff(x: f32) -> f32 {

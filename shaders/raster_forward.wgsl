@@ -11,41 +11,24 @@
 // Per pixel: number of tile entries up to and including the last one blended.
 @group(0) @binding(6) var<storage, read_write> contributors: array<u32>;
 
-var<workgroup> batch: array<Splat, TILE_PIXELS>;
-var<workgroup> active_count: atomic<u32>;
-var<workgroup> active_total: u32;
-
 @compute @workgroup_size(16, 16)
 fn forward(
     @builtin(workgroup_id) wg: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
     @builtin(local_invocation_index) li: u32,
 ) {
-    let tile = wg.y * params.tiles_x + wg.x;
-    let origin = wg.xy * TILE;
-    let pixel = origin + lid.xy;
-    let inside = pixel.x < params.width && pixel.y < params.height;
-    var open = inside;
+    let at = tile_pixel(wg, lid);
+    let origin = at.origin;
+    var open = at.inside;
     var transmittance = 1.0;
     var color = vec3<f32>(0.0);
     var last = 0u;
-    let start = tile_offsets[tile];
-    let end = tile_offsets[tile + 1u];
+    let start = tile_offsets[at.tile];
+    let end = tile_offsets[at.tile + 1u];
 
     for (var base = start; base < end; base += TILE_PIXELS) {
         // Stop once no pixel of the tile can take more colour.
-        if li == 0u {
-            atomicStore(&active_count, 0u);
-        }
-        workgroupBarrier();
-        if open {
-            atomicAdd(&active_count, 1u);
-        }
-        workgroupBarrier();
-        if li == 0u {
-            active_total = atomicLoad(&active_count);
-        }
-        if workgroupUniformLoad(&active_total) == 0u {
+        if workgroup_max(li, u32(open)) == 0u {
             break;
         }
         if base + li < end {
@@ -74,8 +57,8 @@ fn forward(
         }
     }
 
-    if inside {
-        let p = pixel.y * params.width + pixel.x;
+    if at.inside {
+        let p = at.pixel.y * params.width + at.pixel.x;
         out_rgba[p] = vec4<f32>(color + transmittance * params.background.xyz, 1.0 - transmittance);
         final_transmittance[p] = transmittance;
         contributors[p] = last;
