@@ -24,6 +24,10 @@ pub enum GpuError {
     Readback(String),
 }
 
+/// What the fast backward needs: float atomics, and subgroup sums that make them 8–32× fewer.
+pub(crate) const FLOAT_ATOMIC_FEATURES: wgpu::Features =
+    wgpu::Features::SHADER_FLOAT32_ATOMIC.union(wgpu::Features::SUBGROUP);
+
 /// A wgpu device and queue.
 pub struct GpuContext {
     pub device: wgpu::Device,
@@ -33,8 +37,8 @@ pub struct GpuContext {
 
 impl GpuContext {
     /// Opens the preferred adapter (`WGPU_BACKEND` and `WGPU_POWER_PREF` choose, as in wgpu),
-    /// with the adapter's own limits so large scenes fit, and with SHADER_FLOAT32_ATOMIC when
-    /// `float_atomics` is asked for and the adapter offers it.
+    /// with the adapter's own limits so large scenes fit, and with SHADER_FLOAT32_ATOMIC and
+    /// SUBGROUP when `float_atomics` is asked for and the adapter offers both.
     pub fn new(float_atomics: bool) -> Result<Self, GpuError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
@@ -49,8 +53,9 @@ impl GpuContext {
         let info = adapter.get_info();
         // The adapter's own limits: the largest buffers and the most bindings it offers.
         let required_limits = adapter.limits();
-        let required_features = if float_atomics {
-            adapter.features() & wgpu::Features::SHADER_FLOAT32_ATOMIC
+        let fast = FLOAT_ATOMIC_FEATURES;
+        let required_features = if float_atomics && adapter.features().contains(fast) {
+            fast
         } else {
             wgpu::Features::empty()
         };

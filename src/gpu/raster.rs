@@ -3,7 +3,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::{GpuContext, GpuError, GrowBuffer};
+use super::{FLOAT_ATOMIC_FEATURES, GpuContext, GpuError, GrowBuffer};
 use crate::raster::{RenderOutput, Splat, SplatGrad, TileBins, min_power};
 
 /// A splat as the shaders read it (`Splat` in `shaders/raster_common.wgsl`).
@@ -87,7 +87,7 @@ pub struct GpuRasterizer {
 
 impl GpuRasterizer {
     /// Opens the default GPU (see [`GpuContext::new`]) and builds the pipelines, with the
-    /// float-atomic backward where the adapter offers SHADER_FLOAT32_ATOMIC.
+    /// float-atomic backward where the adapter offers SHADER_FLOAT32_ATOMIC and SUBGROUP.
     pub fn new() -> Result<Self, GpuError> {
         Ok(Self::with_context(GpuContext::new(true)?))
     }
@@ -99,7 +99,7 @@ impl GpuRasterizer {
     }
 
     /// Builds the pipelines on an open device; the backward uses float atomics when the
-    /// device was opened with SHADER_FLOAT32_ATOMIC.
+    /// device was opened with SHADER_FLOAT32_ATOMIC and SUBGROUP.
     pub fn with_context(gpu: GpuContext) -> Self {
         let device = &gpu.device;
         let pipeline = |label: &str, source: &str, entry: &str| {
@@ -117,9 +117,7 @@ impl GpuRasterizer {
             })
         };
         let forward = pipeline("raster_forward", FORWARD_WGSL, "forward");
-        let atomics = device
-            .features()
-            .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let atomics = device.features().contains(FLOAT_ATOMIC_FEATURES);
         let backward = if atomics {
             pipeline("raster_backward_atomic", BACKWARD_ATOMIC_WGSL, "backward")
         } else {
