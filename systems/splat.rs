@@ -33,23 +33,22 @@ pub fn splat(
         .collect_into_vec(&mut buffers.splats);
     let (width, height) = (camera.width as usize, camera.height as usize);
     let background = settings.train.background;
-    if let Some(mut gpu) = gpu {
-        gpu.forward(
+    match gpu {
+        Some(mut gpu) => gpu.forward(
             &buffers.splats,
             width,
             height,
             background,
             &mut buffers.render,
-        )?;
-        return Ok(());
+        )?,
+        None => buffers.rasterizer.forward(
+            &buffers.splats,
+            width,
+            height,
+            background,
+            &mut buffers.render,
+        ),
     }
-    buffers.rasterizer.forward(
-        &buffers.splats,
-        width,
-        height,
-        background,
-        &mut buffers.render,
-    );
     Ok(())
 }
 
