@@ -1,5 +1,6 @@
 //! One training iteration (forward + loss + backward + Adam, no densification) at 640×360 on
-//! the fixed benchmark population: N Gaussians from a seeded RNG, static, SH degree 0.
+//! the fixed benchmark population: N Gaussians from a seeded RNG, static, SH degree 0, on the
+//! CPU backend and on the GPU backend (skipped with a message where no adapter opens).
 
 use std::sync::Arc;
 
@@ -11,10 +12,13 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use tadgs::components::*;
 use tadgs::data::{Camera, Dataset};
+use tadgs::gpu::{GpuError, GpuRasterizer};
 use tadgs::io::image::Image;
 use tadgs::model::deform::logit;
 use tadgs::model::sh::rgb_to_sh_dc;
-use tadgs::scene::{DataSource, SceneConfig};
+use tadgs::raster::{Rasterizer, RenderOutput};
+use tadgs::resources::SplatBuffers;
+use tadgs::scene::{BackendKind, DataSource, SceneConfig};
 use tadgs::systems::training_schedule;
 use tadgs::train::insert_resources;
 
@@ -76,7 +80,8 @@ fn benchmark_gaussians(n: usize, seed: u64) -> Vec<GaussianParams> {
         .collect()
 }
 
-fn world_with(n: usize) -> World {
+/// The benchmark world on `backend`, or None when that backend cannot start.
+fn world_with(n: usize, backend: BackendKind) -> Option<World> {
     let cam = camera();
     let target: Vec<[f32; 3]> = (0..(WIDTH * HEIGHT) as usize)
         .map(|i| [((i % 97) as f32) / 97.0, 0.5, 0.3])
@@ -94,30 +99,88 @@ fn world_with(n: usize) -> World {
     config.model.sh_degree = 0;
     config.densify.until_iter = 0; // no densification
     config.densify.opacity_reset_interval = 0;
+    config.train.backend = backend;
     let mut world = World::new();
-    insert_resources(&mut world, &config, Arc::new(dataset));
+    if let Err(e) = insert_resources(&mut world, &config, Arc::new(dataset)) {
+        eprintln!("skipping the {backend:?} backend: {e}");
+        return None;
+    }
     world.spawn_batch(
         benchmark_gaussians(n, 42)
             .into_iter()
             .map(GaussianParams::bundle)
             .collect::<Vec<_>>(),
     );
-    world
+    Some(world)
 }
 
 fn bench_iteration(c: &mut Criterion) {
     let mut group = c.benchmark_group("train_iteration_640x360");
     group.sample_size(10);
     for n in [100_000usize] {
-        let mut world = world_with(n);
-        let mut schedule = training_schedule();
-        schedule.run(&mut world); // warm-up: buffers reach their size
-        group.bench_function(format!("{n}_gaussians"), |b| {
-            b.iter(|| schedule.run(&mut world))
+        for (backend, name) in [(BackendKind::Cpu, "cpu"), (BackendKind::Gpu, "gpu")] {
+            let Some(mut world) = world_with(n, backend) else {
+                continue;
+            };
+            if let Some(gpu) = world.get_resource::<tadgs::gpu::GpuRasterizer>() {
+                eprintln!("GPU backend: {}", gpu.describe());
+            }
+            let mut schedule = training_schedule();
+            schedule.run(&mut world); // warm-up: buffers reach their size
+            group.bench_function(format!("{n}_gaussians_{name}"), |b| {
+                b.iter(|| schedule.run(&mut world))
+            });
+        }
+    }
+    group.finish();
+}
+
+/// Blending alone (forward + backward, the splats of the benchmark population at 640×360) on
+/// the CPU rasterizer and on each GPU backward path.
+fn bench_blending(c: &mut Criterion) {
+    let n = 100_000;
+    let Some(mut world) = world_with(n, BackendKind::Cpu) else {
+        return;
+    };
+    tadgs::systems::render_schedule().run(&mut world);
+    let splats = world.resource::<SplatBuffers>().splats.clone();
+    let (width, height) = (WIDTH as usize, HEIGHT as usize);
+    let d_color = vec![[1e-3f32, -2e-3, 5e-4]; width * height];
+    let mut out = RenderOutput::default();
+    let mut grads = Vec::new();
+    let mut group = c.benchmark_group("blend_forward_backward_640x360");
+    group.sample_size(10);
+    let mut cpu = Rasterizer::new();
+    group.bench_function(format!("{n}_gaussians_cpu"), |b| {
+        b.iter(|| {
+            cpu.forward(&splats, width, height, [0.0; 3], &mut out);
+            cpu.backward(&splats, &d_color, width, &mut grads);
+        })
+    });
+    let open: [(&str, fn() -> Result<GpuRasterizer, GpuError>); 2] = [
+        ("gpu_default", GpuRasterizer::new),
+        ("gpu_tile_sums", GpuRasterizer::portable),
+    ];
+    for (name, open) in open {
+        let mut gpu = match open() {
+            Ok(gpu) => gpu,
+            Err(e) => {
+                eprintln!("skipping {name}: {e}");
+                continue;
+            }
+        };
+        eprintln!("{name}: {}", gpu.describe());
+        group.bench_function(format!("{n}_gaussians_{name}"), |b| {
+            b.iter(|| {
+                gpu.forward(&splats, width, height, [0.0; 3], &mut out)
+                    .expect("GPU forward");
+                gpu.backward(&splats, &d_color, &mut grads)
+                    .expect("GPU backward");
+            })
         });
     }
     group.finish();
 }
 
-criterion_group!(benches, bench_iteration);
+criterion_group!(benches, bench_iteration, bench_blending);
 criterion_main!(benches);

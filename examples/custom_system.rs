@@ -64,7 +64,7 @@ fn run(iterations: u32) -> Result<Outcome> {
     )?;
     let dataset = Arc::new(tadgs::data::load(&scene.data)?);
     let mut world = World::new();
-    insert_resources(&mut world, &scene, dataset);
+    insert_resources(&mut world, &scene, dataset)?;
     spawn_initial_gaussians(&mut world, &scene)?;
 
     // Tag the Gaussians inside the box and remember every starting state.

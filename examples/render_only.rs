@@ -39,7 +39,7 @@ fn render_sweep(run: &Path, steps: usize) -> Result<Vec<(f32, Image)>> {
         dataset.frame_count,
         scene_extent(&dataset.cameras),
         camera,
-    );
+    )?;
     world.resource_mut::<TrainState>().sh_degree = model.sh_degree;
     model.spawn_into(&mut world);
 

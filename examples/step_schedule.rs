@@ -51,7 +51,7 @@ fn run(iterations: u32) -> Result<Outcome> {
     let dataset = Arc::new(tadgs::data::load(&scene.data)?);
 
     let mut world = World::new();
-    insert_resources(&mut world, &scene, dataset);
+    insert_resources(&mut world, &scene, dataset)?;
     let spawned = spawn_initial_gaussians(&mut world, &scene)?;
     let mut schedule = training_schedule();
 

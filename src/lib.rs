@@ -54,6 +54,7 @@
 pub mod budget;
 pub mod components;
 pub mod data;
+pub mod gpu;
 pub mod io;
 pub mod metrics;
 pub mod model;

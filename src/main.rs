@@ -81,6 +81,9 @@ enum Command {
         /// Output folder (default: the scene's `output`).
         #[arg(long)]
         output: Option<PathBuf>,
+        /// Splatting backend (train.backend): cpu, or gpu through wgpu.
+        #[arg(long, value_parser = ["cpu", "gpu"])]
+        backend: Option<String>,
         #[command(flatten)]
         eval: EvalArgs,
     },
@@ -169,11 +172,16 @@ fn run(cli: Cli) -> Result<()> {
             iterations,
             overrides,
             output,
+            backend,
             eval,
         } => {
             let mut config = load_with_overrides(&scene, &overrides)?;
             if let Some(n) = iterations {
                 set_override(&mut config, "train.iterations", &n.to_string())?;
+            }
+            if let Some(backend) = backend {
+                let kind = if backend == "gpu" { "Gpu" } else { "Cpu" };
+                set_override(&mut config, "train.backend", kind)?;
             }
             let output = output.unwrap_or_else(|| PathBuf::from(&config.output));
             train(&config, &output, &eval, quiet)
@@ -200,7 +208,7 @@ fn run(cli: Cli) -> Result<()> {
             std::fs::create_dir_all(&output)
                 .with_context(|| format!("creating {}", output.display()))?;
             let dataset = Arc::new(dataset);
-            let mut trainer = Trainer::from_model(&config, dataset.clone(), &model);
+            let mut trainer = Trainer::try_from_model(&config, dataset.clone(), &model)?;
             let report = evaluate(&mut trainer, &dataset, &output, &eval, quiet)?;
             let summary = RunSummary::new(&config, &report, model.gaussians.len(), None);
             write_metrics(&output, &summary, &report.scores)?;

@@ -162,6 +162,8 @@ pub struct NumericFault(pub Option<Fault>);
 pub enum Backend {
     #[default]
     Cpu,
+    /// Blending runs on the [`crate::gpu::GpuRasterizer`] resource.
+    Gpu,
 }
 
 /// Gradient of the loss with respect to a deformed Gaussian (at the current time).

@@ -16,6 +16,7 @@ use crate::data::init::{
 };
 use crate::data::pointcloud::read_point_cloud;
 use crate::data::{Camera, DataError, Dataset};
+use crate::gpu::{GpuError, GpuRasterizer};
 use crate::io::image::Image;
 use crate::io::model::Model;
 use crate::metrics::eval::{ViewScores, mean, score_view};
@@ -39,11 +40,18 @@ pub fn init_task_pool() {
 }
 
 /// Inserts every resource the tadgs systems read into `world`.
-pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dataset>) {
+///
+/// With `backend: Gpu` this opens the GPU (see [`GpuRasterizer::new`]); that is the one way it
+/// can fail.
+pub fn insert_resources(
+    world: &mut World,
+    scene: &SceneConfig,
+    dataset: Arc<Dataset>,
+) -> Result<(), GpuError> {
     let first = dataset.train.first();
     let camera = first.map_or(dataset.cameras[0], |v| dataset.cameras[v.camera]);
     let extent = scene_extent(&dataset.cameras);
-    insert_render_resources(world, scene, dataset.frame_count, extent, camera);
+    insert_render_resources(world, scene, dataset.frame_count, extent, camera)?;
     *world.resource_mut::<ViewSample>() = ViewSample {
         camera,
         view: first.map(|_| 0),
@@ -55,18 +63,20 @@ pub fn insert_resources(world: &mut World, scene: &SceneConfig, dataset: Arc<Dat
     world.insert_resource(Rng::seeded(scene.train.seed));
     world.insert_resource(LossImage::default());
     world.insert_resource(NumericFault::default());
+    Ok(())
 }
 
 /// Inserts the resources the render stages (time warp, deformation, splatting) read, for a
 /// sequence of `frame_count` frames and a rig of the given extent, viewing from `camera` at
-/// time 0. Enough to draw a trained model with [`render_schedule`] without a dataset.
+/// time 0. Enough to draw a trained model with [`render_schedule`] without a dataset. With
+/// `backend: Gpu` this opens the GPU, the one way it can fail.
 pub fn insert_render_resources(
     world: &mut World,
     scene: &SceneConfig,
     frame_count: usize,
     extent: f32,
     camera: Camera,
-) {
+) -> Result<(), GpuError> {
     init_task_pool();
     world.insert_resource(Settings::new(scene, frame_count, extent));
     world.insert_resource(TrainState::default());
@@ -76,10 +86,17 @@ pub fn insert_render_resources(
         frame: 0,
         time: 0.0,
     });
-    world.insert_resource(match scene.train.backend {
-        crate::scene::BackendKind::Cpu => Backend::Cpu,
-    });
+    match scene.train.backend {
+        crate::scene::BackendKind::Cpu => world.insert_resource(Backend::Cpu),
+        crate::scene::BackendKind::Gpu => {
+            let gpu = GpuRasterizer::new()?;
+            tracing::info!("GPU backend: {}", gpu.describe());
+            world.insert_resource(gpu);
+            world.insert_resource(Backend::Gpu)
+        }
+    };
     world.insert_resource(SplatBuffers::default());
+    Ok(())
 }
 
 /// The initial Gaussians could not be made.
@@ -93,6 +110,8 @@ pub enum InitError {
     Empty { frame: usize },
     #[error("initialisation: {0}")]
     Memory(#[from] BudgetError),
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
 }
 
 /// Spawns the initial Gaussians: the points of `scene.init.method` at every anchor frame.
@@ -267,10 +286,10 @@ pub struct Trainer {
 impl Trainer {
     /// Builds a world from `scene` and `dataset` and spawns the initial Gaussians; an
     /// initialisation that cannot run (a missing point-cloud file, masks that carve nothing
-    /// with `Carve`) is an error.
+    /// with `Carve`) or a GPU backend without a GPU is an error.
     pub fn try_new(scene: &SceneConfig, dataset: Arc<Dataset>) -> Result<Self, InitError> {
         let mut world = World::new();
-        insert_resources(&mut world, scene, dataset.clone());
+        insert_resources(&mut world, scene, dataset.clone())?;
         apply_memory_budget(&mut world, scene, &dataset)?;
         spawn_initial_gaussians(&mut world, scene)?;
         Ok(Self::with_world(world))
@@ -285,13 +304,26 @@ impl Trainer {
     }
 
     /// Builds a world from `scene` and `dataset` holding the Gaussians of a trained `model`
-    /// (for evaluation, rendering, or training on from them).
-    pub fn from_model(scene: &SceneConfig, dataset: Arc<Dataset>, model: &Model) -> Self {
+    /// (for evaluation, rendering, or training on from them); a GPU backend without a GPU is
+    /// an error.
+    pub fn try_from_model(
+        scene: &SceneConfig,
+        dataset: Arc<Dataset>,
+        model: &Model,
+    ) -> Result<Self, GpuError> {
         let mut world = World::new();
-        insert_resources(&mut world, scene, dataset);
+        insert_resources(&mut world, scene, dataset)?;
         model.spawn_into(&mut world);
         world.resource_mut::<TrainState>().sh_degree = model.sh_degree;
-        Self::with_world(world)
+        Ok(Self::with_world(world))
+    }
+
+    /// [`Trainer::try_from_model`] for the CPU backend (or a GPU known to be there).
+    ///
+    /// # Panics
+    /// When the GPU backend cannot start.
+    pub fn from_model(scene: &SceneConfig, dataset: Arc<Dataset>, model: &Model) -> Self {
+        Self::try_from_model(scene, dataset, model).unwrap_or_else(|e| panic!("{e}"))
     }
 
     fn with_world(world: World) -> Self {

@@ -7,6 +7,7 @@ use rayon::prelude::*;
 use crate::components::{
     Color, Deformed, Fourier, Grad, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
 };
+use crate::gpu::GpuRasterizer;
 use crate::model::deform::{
     fourier_offset_backward, rotation_at_backward, scale_at_backward, temporal_opacity_backward,
 };
@@ -16,21 +17,26 @@ use crate::resources::{DeformedGrad, LossImage, Settings, SplatBuffers, TrainSta
 use crate::systems::deform::DeformInputs;
 
 /// Back-propagates the image gradient through blending and projection to each slot's deformed
-/// Gaussian, and records the NDC-space 2D mean gradient norm used by densification.
+/// Gaussian, and records the NDC-space 2D mean gradient norm used by densification. Blending
+/// is differentiated on the GPU when there is a [`GpuRasterizer`] resource.
 pub fn backward_splats(
     sample: Res<ViewSample>,
     loss: Res<LossImage>,
     mut buffers: ResMut<SplatBuffers>,
-) {
+    gpu: Option<ResMut<GpuRasterizer>>,
+) -> Result {
     let buffers = &mut *buffers;
     let camera = sample.camera;
     let width = camera.width as usize;
-    buffers.rasterizer.backward(
-        &buffers.splats,
-        &loss.d_color,
-        width,
-        &mut buffers.splat_grads,
-    );
+    match gpu {
+        Some(mut gpu) => gpu.backward(&buffers.splats, &loss.d_color, &mut buffers.splat_grads)?,
+        None => buffers.rasterizer.backward(
+            &buffers.splats,
+            &loss.d_color,
+            width,
+            &mut buffers.splat_grads,
+        ),
+    }
 
     // NDC spans the image over [−1, 1]: one pixel is 2/W (resp. 2/H) NDC units.
     let half = glam::Vec2::new(0.5 * camera.width as f32, 0.5 * camera.height as f32);
@@ -73,6 +79,7 @@ pub fn backward_splats(
             }
         })
         .collect_into_vec(&mut buffers.deformed_grads);
+    Ok(())
 }
 
 /// The gradient components written by the backward pass.

@@ -5,17 +5,20 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::components::{Deformed, SplatSlot};
+use crate::gpu::GpuRasterizer;
 use crate::model::project::project;
 use crate::raster::Splat;
 use crate::resources::{Settings, SplatBuffers, ViewSample};
 
-/// Gathers the deformed Gaussians into slots, projects them (EWA) and blends the image.
+/// Gathers the deformed Gaussians into slots, projects them (EWA) and blends the image, on the
+/// GPU when there is a [`GpuRasterizer`] resource.
 pub fn splat(
     settings: Res<Settings>,
     sample: Res<ViewSample>,
     mut buffers: ResMut<SplatBuffers>,
+    gpu: Option<ResMut<GpuRasterizer>>,
     mut gaussians: Query<(&Deformed, &mut SplatSlot)>,
-) {
+) -> Result {
     let buffers = &mut *buffers;
     let camera = sample.camera;
     buffers.deformed.clear();
@@ -29,13 +32,24 @@ pub fn splat(
         .map(|d| project_splat(d, &camera, settings.train.near_plane))
         .collect_into_vec(&mut buffers.splats);
     let (width, height) = (camera.width as usize, camera.height as usize);
-    buffers.rasterizer.forward(
-        &buffers.splats,
-        width,
-        height,
-        settings.train.background,
-        &mut buffers.render,
-    );
+    let background = settings.train.background;
+    match gpu {
+        Some(mut gpu) => gpu.forward(
+            &buffers.splats,
+            width,
+            height,
+            background,
+            &mut buffers.render,
+        )?,
+        None => buffers.rasterizer.forward(
+            &buffers.splats,
+            width,
+            height,
+            background,
+            &mut buffers.render,
+        ),
+    }
+    Ok(())
 }
 
 /// The splat of one deformed Gaussian; invisible when culled (nearer than `near_plane`, off

@@ -49,7 +49,7 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
     config.model.opacity = opacity_model;
     config.model.tow.window_frames = 4.0; // λ = 4/11: the view time lies outside some windows
     let mut world = World::new();
-    insert_resources(&mut world, &config, Arc::new(dataset));
+    insert_resources(&mut world, &config, Arc::new(dataset)).expect("CPU backend");
     world.resource_mut::<TrainState>().sh_degree = 3;
     *world.resource_mut::<ViewSample>() = ViewSample {
         camera,

@@ -36,7 +36,7 @@ fn poison_at_iteration_6(state: Res<TrainState>, mut grads: Query<&mut Grad<Rota
 fn nan_stops_the_optimisation_and_keeps_the_last_good_parameters() {
     let (config, dataset) = tiny::tiny_demo(48, 36, 200);
     let mut world = World::new();
-    insert_resources(&mut world, &config, dataset);
+    insert_resources(&mut world, &config, dataset).expect("CPU backend");
     spawn_initial_gaussians(&mut world, &config).unwrap();
     let mut schedule = training_schedule();
     schedule.add_systems(

@@ -188,7 +188,7 @@ proptest! {
         background in [0.0f32..1.0, 0.0f32..1.0, 0.0f32..1.0],
         seed in any::<u32>(),
     ) {
-        let splats: Vec<_> = raws.iter().map(|r| project_splat(&deformed(r, &camera), &camera)).collect();
+        let splats: Vec<_> = raws.iter().map(|r| project_splat(&deformed(r, &camera), &camera, 0.01)).collect();
         let (w, h) = (camera.width as usize, camera.height as usize);
         let mut raster = Rasterizer::new();
         let mut out = RenderOutput::default();

@@ -134,7 +134,7 @@ fn densification_keeps_components_and_adam_state_consistent() {
     config.densify.prune_opacity = 0.1; // the initial opacity: about half fall below it
     config.densify.tat = false;
     let mut world = World::new();
-    insert_resources(&mut world, &config, dataset);
+    insert_resources(&mut world, &config, dataset).expect("CPU backend");
     spawn_initial_gaussians(&mut world, &config).expect("random points initialise");
     // Median initial scale as the clone/split boundary, so both happen.
     let mut scales: Vec<f32> = world

@@ -30,6 +30,11 @@ impl TileBins {
         self.sorted_splats.len()
     }
 
+    /// Prefix sums of entries per splat (splat-major entry order), one more than splats.
+    pub fn splat_offsets(&self) -> &[u32] {
+        &self.splat_offsets
+    }
+
     /// Sorted entries of tile `t`.
     pub fn tile_range(&self, t: usize) -> std::ops::Range<usize> {
         self.tile_offsets[t] as usize..self.tile_offsets[t + 1] as usize

@@ -147,7 +147,7 @@ fn box_pixels(splat: &Splat, origin: (usize, usize)) -> impl Iterator<Item = usi
 /// The exponent below which a splat's alpha is under 1/255 (with a little slack for rounding;
 /// the alpha test itself follows).
 #[inline]
-fn min_power(splat: &Splat) -> f32 {
+pub(crate) fn min_power(splat: &Splat) -> f32 {
     (ALPHA_MIN / splat.opacity).ln() - 1e-4
 }
 

@@ -317,6 +317,8 @@ impl Default for LearningRates {
 pub enum BackendKind {
     /// The tile rasterizer on the CPU (rayon), forward and backward.
     Cpu,
+    /// Forward and backward blending on a GPU through wgpu (Vulkan, Metal, DX12, GL).
+    Gpu,
 }
 
 /// Optimisation schedule.

@@ -1,0 +1,98 @@
+// Shared by the rasterizer kernels: the splat layout, the constants of SPEC §4 and the
+// Gaussian falloff, written to agree with the CPU reference (src/raster/) pixel for pixel.
+
+const TILE: u32 = 16u;
+const TILE_PIXELS: u32 = 256u;
+const ALPHA_MIN: f32 = 0.003921569; // 1/255
+const ALPHA_MAX: f32 = 0.99;
+const TRANSMITTANCE_MIN: f32 = 1e-4;
+
+// A projected Gaussian. `conic.w` is the exponent below which alpha < 1/255 (computed on the
+// CPU with the reference's formula); `color.w` is the opacity.
+struct Splat {
+    mean: vec2<f32>,
+    extent: vec2<f32>,
+    conic: vec4<f32>,
+    color: vec4<f32>,
+}
+
+struct Params {
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    background: vec4<f32>,
+}
+
+// A batch of a tile's splats, staged in workgroup memory by the blending kernels.
+var<workgroup> batch: array<Splat, TILE_PIXELS>;
+var<workgroup> max_slot: atomic<u32>;
+var<workgroup> max_result: u32;
+
+// The pixel of one invocation of a 16×16 blending workgroup: one workgroup per tile.
+struct TilePixel {
+    tile: u32,
+    origin: vec2<u32>,
+    pixel: vec2<u32>,
+    // Inside the image (edge tiles overhang it).
+    inside: bool,
+}
+
+fn tile_pixel(wg: vec3<u32>, lid: vec3<u32>) -> TilePixel {
+    let origin = wg.xy * TILE;
+    let pixel = origin + lid.xy;
+    return TilePixel(
+        wg.y * params.tiles_x + wg.x,
+        origin,
+        pixel,
+        pixel.x < params.width && pixel.y < params.height,
+    );
+}
+
+// The largest `value` over the workgroup, as a workgroup-uniform value (so loops may depend on
+// it around barriers). Every invocation must call it.
+fn workgroup_max(li: u32, value: u32) -> u32 {
+    if li == 0u {
+        atomicStore(&max_slot, 0u);
+    }
+    workgroupBarrier();
+    atomicMax(&max_slot, value);
+    workgroupBarrier();
+    if li == 0u {
+        max_result = atomicLoad(&max_slot);
+    }
+    return workgroupUniformLoad(&max_result);
+}
+
+// e^x for x ≤ 0 by the reference's power-of-two split and degree-6 polynomial, so GPU and CPU
+// agree to rounding (WGSL's exp has implementation-defined precision).
+fn exp_falloff(x: f32) -> f32 {
+    let t = max(x * 1.442695041, -126.0);
+    let n = round(t);
+    let f = t - n;
+    let p = 1.0 + f * (0.6931472 + f * (0.2402265 + f * (0.05550411
+        + f * (0.009618129 + f * (0.0013333558 + f * 0.0001540353)))));
+    return bitcast<f32>(u32(i32(n) + 127) << 23u) * p;
+}
+
+// (dx, dy, G, drawn) of splat `s` at tile-local pixel `local` of the tile at `origin`: drawn is
+// 1 inside the splat's screen box where opacity·G ≥ 1/255, as in the reference's `falloff_at`.
+fn falloff_at(s: Splat, origin: vec2<u32>, local: vec2<u32>) -> vec4<f32> {
+    let o = vec2<f32>(origin);
+    let l = vec2<f32>(local);
+    let lo = floor(s.mean - s.extent - 0.5 - o);
+    let hi = ceil(s.mean + s.extent - 0.5 - o);
+    if any(l < lo) || any(l > hi) {
+        return vec4<f32>(0.0);
+    }
+    let d = vec2<f32>(origin + local) + 0.5 - s.mean;
+    let pw = -0.5 * (s.conic.x * d.x * d.x + s.conic.z * d.y * d.y) - s.conic.y * d.x * d.y;
+    if pw > 0.0 || pw < s.conic.w {
+        return vec4<f32>(0.0);
+    }
+    let g = exp_falloff(pw);
+    if s.color.w * g < ALPHA_MIN {
+        return vec4<f32>(0.0);
+    }
+    return vec4<f32>(d, g, 1.0);
+}

@@ -1,0 +1,66 @@
+// Forward blending: one 16×16 workgroup per tile, one invocation per pixel; the tile's
+// depth-sorted splats are staged through workgroup memory 256 at a time.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> splats: array<Splat>;
+@group(0) @binding(2) var<storage, read> sorted_splats: array<u32>;
+@group(0) @binding(3) var<storage, read> tile_offsets: array<u32>;
+// Row-major: rgb over the background, and alpha = 1 − final transmittance.
+@group(0) @binding(4) var<storage, read_write> out_rgba: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> final_transmittance: array<f32>;
+// Per pixel: number of tile entries up to and including the last one blended.
+@group(0) @binding(6) var<storage, read_write> contributors: array<u32>;
+
+@compute @workgroup_size(16, 16)
+fn forward(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(local_invocation_id) lid: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+) {
+    let at = tile_pixel(wg, lid);
+    let origin = at.origin;
+    var open = at.inside;
+    var transmittance = 1.0;
+    var color = vec3<f32>(0.0);
+    var last = 0u;
+    let start = tile_offsets[at.tile];
+    let end = tile_offsets[at.tile + 1u];
+
+    for (var base = start; base < end; base += TILE_PIXELS) {
+        // Stop once no pixel of the tile can take more colour.
+        if workgroup_max(li, u32(open)) == 0u {
+            break;
+        }
+        if base + li < end {
+            batch[li] = splats[sorted_splats[base + li]];
+        }
+        workgroupBarrier();
+        let count = min(TILE_PIXELS, end - base);
+        for (var j = 0u; j < count; j++) {
+            if !open {
+                break;
+            }
+            let s = batch[j];
+            let f = falloff_at(s, origin, lid.xy);
+            if f.w == 0.0 {
+                continue;
+            }
+            let alpha = min(s.color.w * f.z, ALPHA_MAX);
+            let next = transmittance * (1.0 - alpha);
+            if next < TRANSMITTANCE_MIN {
+                open = false;
+                break;
+            }
+            color += s.color.xyz * (alpha * transmittance);
+            transmittance = next;
+            last = base - start + j + 1u;
+        }
+    }
+
+    if at.inside {
+        let p = at.pixel.y * params.width + at.pixel.x;
+        out_rgba[p] = vec4<f32>(color + transmittance * params.background.xyz, 1.0 - transmittance);
+        final_transmittance[p] = transmittance;
+        contributors[p] = last;
+    }
+}

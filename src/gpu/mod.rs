@@ -1,0 +1,183 @@
+//! GPU backend (wgpu): the splat rasterizer's forward and backward blending as WGSL compute
+//! passes (`shaders/raster_*.wgsl`), held to the CPU reference in `src/raster/` by parity tests.
+//!
+//! Projection, tile binning and the per-tile depth sort stay on the CPU (rayon); the GPU runs
+//! the per-pixel work, which is most of an iteration's cost.
+
+mod raster;
+
+pub use raster::GpuRasterizer;
+
+/// The GPU backend could not start or a transfer failed.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "no GPU adapter found ({0}); install a Vulkan, Metal or DX12 driver (Mesa's lavapipe works without a GPU) or use `backend: Cpu`"
+    )]
+    NoAdapter(#[from] wgpu::RequestAdapterError),
+    #[error("the GPU adapter {adapter} refused a device: {source}")]
+    Device {
+        adapter: String,
+        source: wgpu::RequestDeviceError,
+    },
+    #[error("reading back a GPU buffer failed: {0}")]
+    Readback(String),
+}
+
+/// What the fast backward needs: float atomics, and subgroup sums that make them 8–32× fewer.
+pub(crate) const FLOAT_ATOMIC_FEATURES: wgpu::Features =
+    wgpu::Features::SHADER_FLOAT32_ATOMIC.union(wgpu::Features::SUBGROUP);
+
+/// A wgpu device and queue.
+pub struct GpuContext {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub adapter: wgpu::AdapterInfo,
+}
+
+impl GpuContext {
+    /// Opens the preferred adapter (`WGPU_BACKEND` and `WGPU_POWER_PREF` choose, as in wgpu),
+    /// with the adapter's own limits so large scenes fit, and with SHADER_FLOAT32_ATOMIC and
+    /// SUBGROUP when `float_atomics` is asked for and the adapter offers both.
+    pub fn new(float_atomics: bool) -> Result<Self, GpuError> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter =
+            pollster::block_on(
+                instance.request_adapter(&wgpu::RequestAdapterOptions {
+                    power_preference: wgpu::PowerPreference::from_env()
+                        .unwrap_or(wgpu::PowerPreference::HighPerformance),
+                    ..Default::default()
+                }),
+            )?;
+        let info = adapter.get_info();
+        // The adapter's own limits: the largest buffers and the most bindings it offers.
+        let required_limits = adapter.limits();
+        let fast = FLOAT_ATOMIC_FEATURES;
+        let required_features = if float_atomics && adapter.features().contains(fast) {
+            fast
+        } else {
+            wgpu::Features::empty()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("tadgs"),
+            required_limits,
+            required_features,
+            ..Default::default()
+        }))
+        .map_err(|source| GpuError::Device {
+            adapter: info.name.clone(),
+            source,
+        })?;
+        Ok(Self {
+            device,
+            queue,
+            adapter: info,
+        })
+    }
+
+    /// "name (backend, device type)" of the adapter in use.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({:?}, {:?})",
+            self.adapter.name, self.adapter.backend, self.adapter.device_type
+        )
+    }
+
+    /// Waits for the submitted work and copies the first `bytes` of the mapped `staging`
+    /// buffer into `out`.
+    fn read_back<T: bytemuck::Pod>(
+        &self,
+        staging: &wgpu::Buffer,
+        bytes: u64,
+        out: &mut Vec<T>,
+    ) -> Result<(), GpuError> {
+        out.clear();
+        if bytes == 0 {
+            return Ok(());
+        }
+        let slice = staging.slice(..bytes);
+        let (sender, receiver) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |result| {
+            let _ = sender.send(result);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        receiver
+            .recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            out.extend_from_slice(bytemuck::cast_slice(&view));
+        }
+        staging.unmap();
+        Ok(())
+    }
+}
+
+/// A buffer that grows (never shrinks) to the largest size asked of it.
+struct GrowBuffer {
+    buffer: wgpu::Buffer,
+    usage: wgpu::BufferUsages,
+    label: &'static str,
+    /// Bytes in use (≤ the buffer's size).
+    len: u64,
+}
+
+impl GrowBuffer {
+    fn new(device: &wgpu::Device, label: &'static str, usage: wgpu::BufferUsages) -> Self {
+        Self {
+            buffer: Self::create(device, label, usage, 256),
+            usage,
+            label,
+            len: 0,
+        }
+    }
+
+    fn create(
+        device: &wgpu::Device,
+        label: &'static str,
+        usage: wgpu::BufferUsages,
+        size: u64,
+    ) -> wgpu::Buffer {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Makes room for `bytes` (contents are not kept when it grows).
+    fn reserve(&mut self, device: &wgpu::Device, bytes: u64) {
+        self.len = bytes;
+        if bytes > self.buffer.size() {
+            // Grow by half again, so a slowly growing scene reallocates rarely.
+            let size = (bytes + bytes / 2).next_multiple_of(256);
+            self.buffer = Self::create(device, self.label, self.usage, size);
+        }
+    }
+
+    /// Uploads `data`, growing first when needed.
+    fn upload<T: bytemuck::Pod>(&mut self, gpu: &GpuContext, data: &[T]) {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        self.reserve(&gpu.device, bytes.len() as u64);
+        if !bytes.is_empty() {
+            gpu.queue.write_buffer(&self.buffer, 0, bytes);
+        }
+    }
+
+    /// The used part as a binding (the whole buffer while empty: bindings cannot be empty),
+    /// so `arrayLength` in a shader sees the used length.
+    fn binding(&self) -> wgpu::BindingResource<'_> {
+        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: &self.buffer,
+            offset: 0,
+            size: std::num::NonZeroU64::new(self.len),
+        })
+    }
+}

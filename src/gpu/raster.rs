@@ -1,0 +1,372 @@
+//! The splat rasterizer on the GPU: the same forward and backward blending as
+//! [`crate::raster::Rasterizer`], with the per-pixel loops as compute passes.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::{FLOAT_ATOMIC_FEATURES, GpuContext, GpuError, GrowBuffer};
+use crate::raster::{RenderOutput, Splat, SplatGrad, TileBins, min_power};
+
+/// A splat as the shaders read it (`Splat` in `shaders/raster_common.wgsl`).
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[repr(C)]
+struct GpuSplat {
+    mean: [f32; 2],
+    extent: [f32; 2],
+    /// conic a, b, c and the exponent below which alpha < 1/255.
+    conic: [f32; 4],
+    /// colour and opacity.
+    color: [f32; 4],
+}
+
+/// `Params` in `shaders/raster_common.wgsl`.
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[repr(C)]
+struct Params {
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    background: [f32; 4],
+}
+
+/// Gradient fields per entry and per splat: mean (2), conic (3), opacity, colour (3).
+const FIELDS: usize = 9;
+/// Invocations per workgroup of the per-splat reduction.
+const REDUCE_GROUP: u32 = 256;
+/// Most workgroups per dispatch dimension.
+const MAX_GROUPS: u32 = 65_535;
+
+const FORWARD_WGSL: &str = concat!(
+    include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_forward.wgsl")
+);
+const BACKWARD_TILES_WGSL: &str = concat!(
+    include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_backward.wgsl"),
+    include_str!("../../shaders/raster_backward_tiles.wgsl")
+);
+const BACKWARD_ATOMIC_WGSL: &str = concat!(
+    include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_backward.wgsl"),
+    include_str!("../../shaders/raster_backward_atomic.wgsl")
+);
+const REDUCE_WGSL: &str = include_str!("../../shaders/raster_reduce.wgsl");
+
+/// GPU rasterizer state: device, pipelines and buffers reused across iterations. As a
+/// resource it makes the splat and backward stages blend on the GPU.
+#[derive(bevy_ecs::resource::Resource)]
+pub struct GpuRasterizer {
+    gpu: GpuContext,
+    forward: wgpu::ComputePipeline,
+    backward: wgpu::ComputePipeline,
+    /// Whether `backward` adds into the splat gradients with float atomics (else it writes
+    /// per-entry partial sums that `reduce` adds up).
+    atomics: bool,
+    reduce: wgpu::ComputePipeline,
+    /// Tile binning and depth sort (on the CPU).
+    bins: TileBins,
+    params: GrowBuffer,
+    splats: GrowBuffer,
+    sorted_splats: GrowBuffer,
+    tile_offsets: GrowBuffer,
+    splat_offsets: GrowBuffer,
+    sorted_position: GrowBuffer,
+    rgba: GrowBuffer,
+    final_transmittance: GrowBuffer,
+    contributors: GrowBuffer,
+    d_color: GrowBuffer,
+    entry_grads: GrowBuffer,
+    splat_grads: GrowBuffer,
+    staging: GrowBuffer,
+    host_splats: Vec<GpuSplat>,
+    host_rgba: Vec<[f32; 4]>,
+    host_grads: Vec<[f32; FIELDS]>,
+    /// Tiles across and down of the last forward pass.
+    tiles: (u32, u32),
+}
+
+impl GpuRasterizer {
+    /// Opens the default GPU (see [`GpuContext::new`]) and builds the pipelines, with the
+    /// float-atomic backward where the adapter offers SHADER_FLOAT32_ATOMIC and SUBGROUP.
+    pub fn new() -> Result<Self, GpuError> {
+        Ok(Self::with_context(GpuContext::new(true)?))
+    }
+
+    /// [`GpuRasterizer::new`] with the portable backward (per-tile partial sums and a
+    /// reduction) whatever the adapter offers.
+    pub fn portable() -> Result<Self, GpuError> {
+        Ok(Self::with_context(GpuContext::new(false)?))
+    }
+
+    /// Builds the pipelines on an open device; the backward uses float atomics when the
+    /// device was opened with SHADER_FLOAT32_ATOMIC and SUBGROUP.
+    pub fn with_context(gpu: GpuContext) -> Self {
+        let device = &gpu.device;
+        let pipeline = |label: &str, source: &str, entry: &str| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let forward = pipeline("raster_forward", FORWARD_WGSL, "forward");
+        let atomics = device.features().contains(FLOAT_ATOMIC_FEATURES);
+        let backward = if atomics {
+            pipeline("raster_backward_atomic", BACKWARD_ATOMIC_WGSL, "backward")
+        } else {
+            pipeline("raster_backward_tiles", BACKWARD_TILES_WGSL, "backward")
+        };
+        let reduce = pipeline("raster_reduce", REDUCE_WGSL, "reduce");
+        use wgpu::BufferUsages as U;
+        let storage = U::STORAGE | U::COPY_DST | U::COPY_SRC;
+        let buffer = |label| GrowBuffer::new(device, label, storage);
+        Self {
+            params: GrowBuffer::new(device, "params", U::UNIFORM | U::COPY_DST),
+            splats: buffer("splats"),
+            sorted_splats: buffer("sorted_splats"),
+            tile_offsets: buffer("tile_offsets"),
+            splat_offsets: buffer("splat_offsets"),
+            sorted_position: buffer("sorted_position"),
+            rgba: buffer("rgba"),
+            final_transmittance: buffer("final_transmittance"),
+            contributors: buffer("contributors"),
+            d_color: buffer("d_color"),
+            entry_grads: buffer("entry_grads"),
+            splat_grads: buffer("splat_grads"),
+            staging: GrowBuffer::new(device, "staging", U::MAP_READ | U::COPY_DST),
+            forward,
+            backward,
+            atomics,
+            reduce,
+            gpu,
+            bins: TileBins::default(),
+            host_splats: Vec::new(),
+            host_rgba: Vec::new(),
+            host_grads: Vec::new(),
+            tiles: (0, 0),
+        }
+    }
+
+    /// The adapter in use and the backward's summation, for reports.
+    pub fn describe(&self) -> String {
+        let sums = if self.atomics {
+            "float atomics"
+        } else {
+            "per-tile sums"
+        };
+        format!("{}, backward with {sums}", self.gpu.describe())
+    }
+
+    /// Whether the backward uses float atomics (the fast path) rather than per-tile sums.
+    pub fn uses_float_atomics(&self) -> bool {
+        self.atomics
+    }
+
+    /// Number of (tile, splat) pairs in the last forward pass.
+    pub fn intersections(&self) -> usize {
+        self.bins.entry_count()
+    }
+
+    /// Renders `splats` into a `width × height` image over `background` (see
+    /// [`crate::raster::Rasterizer::forward`]).
+    pub fn forward(
+        &mut self,
+        splats: &[Splat],
+        width: usize,
+        height: usize,
+        background: [f32; 3],
+        out: &mut RenderOutput,
+    ) -> Result<(), GpuError> {
+        self.bins.build(splats, width, height);
+        self.tiles = (self.bins.tiles_x as u32, self.bins.tiles_y as u32);
+        let pixels = width * height;
+        let gpu = &self.gpu;
+        self.params.upload(
+            gpu,
+            &[Params {
+                width: width as u32,
+                height: height as u32,
+                tiles_x: self.tiles.0,
+                tiles_y: self.tiles.1,
+                background: [background[0], background[1], background[2], 0.0],
+            }],
+        );
+        self.host_splats.clear();
+        self.host_splats.extend(splats.iter().map(|s| GpuSplat {
+            mean: s.mean2d.to_array(),
+            extent: s.extent.to_array(),
+            conic: [s.conic[0], s.conic[1], s.conic[2], min_power(s)],
+            color: [s.color[0], s.color[1], s.color[2], s.opacity],
+        }));
+        self.splats.upload(gpu, &self.host_splats);
+        self.sorted_splats.upload(gpu, &self.bins.sorted_splats);
+        self.tile_offsets.upload(gpu, &self.bins.tile_offsets);
+        let rgba_bytes = (pixels * 16) as u64;
+        self.rgba.reserve(&gpu.device, rgba_bytes);
+        self.final_transmittance
+            .reserve(&gpu.device, (pixels * 4) as u64);
+        self.contributors.reserve(&gpu.device, (pixels * 4) as u64);
+        self.staging.reserve(&gpu.device, rgba_bytes);
+
+        let bind_group = bind(
+            gpu,
+            &self.forward,
+            &[
+                &self.params,
+                &self.splats,
+                &self.sorted_splats,
+                &self.tile_offsets,
+                &self.rgba,
+                &self.final_transmittance,
+                &self.contributors,
+            ],
+        );
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        dispatch(&mut encoder, &self.forward, &bind_group, self.tiles);
+        encoder.copy_buffer_to_buffer(&self.rgba.buffer, 0, &self.staging.buffer, 0, rgba_bytes);
+        gpu.queue.submit([encoder.finish()]);
+        gpu.read_back(&self.staging.buffer, rgba_bytes, &mut self.host_rgba)?;
+
+        out.image.width = width;
+        out.image.height = height;
+        out.image.data.clear();
+        out.image
+            .data
+            .extend(self.host_rgba.iter().map(|p| [p[0], p[1], p[2]]));
+        out.alpha.clear();
+        out.alpha.extend(self.host_rgba.iter().map(|p| p[3]));
+        Ok(())
+    }
+
+    /// Back-propagates `d_color` (row-major, the size of the last forward) to one gradient per
+    /// splat of the last [`GpuRasterizer::forward`] call, whose `splats` it must be given.
+    pub fn backward(
+        &mut self,
+        splats: &[Splat],
+        d_color: &[[f32; 3]],
+        grads: &mut Vec<SplatGrad>,
+    ) -> Result<(), GpuError> {
+        let gpu = &self.gpu;
+        let entries = self.bins.entry_count();
+        self.d_color.upload(gpu, d_color);
+        let entry_bytes = (entries * FIELDS * 4) as u64;
+        if !self.atomics {
+            self.splat_offsets.upload(gpu, self.bins.splat_offsets());
+            self.sorted_position.upload(gpu, &self.bins.sorted_position);
+            self.entry_grads.reserve(&gpu.device, entry_bytes);
+        }
+        let grad_bytes = (splats.len() * FIELDS * 4) as u64;
+        self.splat_grads.reserve(&gpu.device, grad_bytes);
+        self.staging.reserve(&gpu.device, grad_bytes);
+
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        // The shared bindings 0–6; binding 7 is what the shares are summed into.
+        let mut bindings = vec![
+            &self.params,
+            &self.splats,
+            &self.sorted_splats,
+            &self.tile_offsets,
+            &self.final_transmittance,
+            &self.contributors,
+            &self.d_color,
+        ];
+        if self.atomics {
+            bindings.push(&self.splat_grads);
+            if grad_bytes > 0 {
+                encoder.clear_buffer(&self.splat_grads.buffer, 0, Some(grad_bytes));
+            }
+            let backward = bind(gpu, &self.backward, &bindings);
+            dispatch(&mut encoder, &self.backward, &backward, self.tiles);
+        } else {
+            bindings.push(&self.entry_grads);
+            // Entries behind every pixel's last contributor get no share: they stay zero.
+            if entry_bytes > 0 {
+                encoder.clear_buffer(&self.entry_grads.buffer, 0, Some(entry_bytes));
+            }
+            let backward = bind(gpu, &self.backward, &bindings);
+            dispatch(&mut encoder, &self.backward, &backward, self.tiles);
+            let reduce = bind(
+                gpu,
+                &self.reduce,
+                &[
+                    &self.splat_offsets,
+                    &self.sorted_position,
+                    &self.entry_grads,
+                    &self.splat_grads,
+                ],
+            );
+            let groups = (splats.len() as u32).div_ceil(REDUCE_GROUP);
+            let across = groups.min(MAX_GROUPS);
+            dispatch(
+                &mut encoder,
+                &self.reduce,
+                &reduce,
+                (across, groups.div_ceil(across.max(1))),
+            );
+        }
+        if grad_bytes > 0 {
+            encoder.copy_buffer_to_buffer(
+                &self.splat_grads.buffer,
+                0,
+                &self.staging.buffer,
+                0,
+                grad_bytes,
+            );
+        }
+        gpu.queue.submit([encoder.finish()]);
+        gpu.read_back(&self.staging.buffer, grad_bytes, &mut self.host_grads)?;
+
+        grads.clear();
+        grads.extend(self.host_grads.iter().map(|g| SplatGrad {
+            mean2d: glam::Vec2::new(g[0], g[1]),
+            conic: [g[2], g[3], g[4]],
+            opacity: g[5],
+            color: [g[6], g[7], g[8]],
+        }));
+        Ok(())
+    }
+}
+
+/// A bind group of `buffers` at bindings 0, 1, 2, … of the pipeline's group 0.
+fn bind(
+    gpu: &GpuContext,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[&GrowBuffer],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.binding(),
+        })
+        .collect();
+    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
+/// Records one compute dispatch of `groups` (x, y) workgroups (none when either is 0).
+fn dispatch(
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    bind_group: &wgpu::BindGroup,
+    groups: (u32, u32),
+) {
+    if groups.0 == 0 || groups.1 == 0 {
+        return;
+    }
+    let mut pass = encoder.begin_compute_pass(&Default::default());
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, bind_group, &[]);
+    pass.dispatch_workgroups(groups.0, groups.1, 1);
+}
