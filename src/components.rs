@@ -167,7 +167,7 @@ pub struct Adam<P: Param> {
 /// Every parameter of a new Gaussian, with zeroed gradients, Adam moments and statistics.
 ///
 /// This is the one place that lists the components of a Gaussian.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GaussianParams {
     pub position: Position,
     pub fourier: Fourier,
@@ -178,7 +178,32 @@ pub struct GaussianParams {
     pub color: Color,
 }
 
+/// The parameter components of one Gaussian, as a read-only query.
+pub type ParamRefs<'a> = (
+    &'a Position,
+    &'a Fourier,
+    &'a Temporal,
+    &'a Opacity,
+    &'a Rotation,
+    &'a Scale,
+    &'a Color,
+);
+
 impl GaussianParams {
+    /// Copies the components of a [`ParamRefs`] query item.
+    pub fn from_refs(refs: ParamRefs<'_>) -> Self {
+        let (position, fourier, temporal, opacity, rotation, scale, color) = refs;
+        Self {
+            position: *position,
+            fourier: *fourier,
+            temporal: *temporal,
+            opacity: *opacity,
+            rotation: *rotation,
+            scale: *scale,
+            color: *color,
+        }
+    }
+
     /// The full component bundle for spawning this Gaussian.
     pub fn bundle(self) -> GaussianBundle {
         (
