@@ -1,5 +1,6 @@
 //! File input and output: images, trained models, checkpoints, splat PLY files and videos.
 
+pub mod camera_path;
 pub mod checkpoint;
 pub mod image;
 pub mod model;

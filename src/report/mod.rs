@@ -76,7 +76,7 @@ impl Report<'_> {
             plot::gaussians(&dir.join("gaussians.png"), log)?;
             sections.push(figure(
                 "gaussians.png",
-                "Number of Gaussians; dashed lines mark densification steps.",
+                "Number of Gaussians; orange dashed lines mark densification steps.",
             ));
         }
         if !self.lifespans.is_empty() {
@@ -90,7 +90,7 @@ impl Report<'_> {
         for (index, view) in self.views.iter().enumerate() {
             let name = format!("view_{index}.png");
             view_strip(view).save_png(&dir.join(&name))?;
-            sections.push(figure(
+            sections.push(figure_wide(
                 &name,
                 &format!(
                     "{}. Render | ground truth | error (mean absolute error per pixel, black = 0, \
@@ -110,7 +110,8 @@ impl Report<'_> {
              body {{ font-family: sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }}\n\
              table {{ border-collapse: collapse; margin-bottom: 1.5em; }}\n\
              th, td {{ text-align: left; padding: 0.2em 1em 0.2em 0; border-bottom: 1px solid #ddd; }}\n\
-             figure {{ margin: 0 0 2em 0; }}\n img {{ max-width: 100%; image-rendering: pixelated; }}\n\
+             figure {{ margin: 0 0 2em 0; }}\n img {{ max-width: 100%; }}\n\
+             img.view {{ width: 100%; image-rendering: pixelated; }}\n\
              figcaption {{ color: #555; }}\n</style>\n</head>\n<body>\n<h1>{title}</h1>\n\
              <table>\n{rows}</table>\n{sections}\n</body>\n</html>\n",
             title = escape(&self.title),
@@ -128,6 +129,14 @@ impl Report<'_> {
 fn figure(image: &str, caption: &str) -> String {
     format!(
         "<figure><img src=\"{image}\" alt=\"{image}\"><figcaption>{}</figcaption></figure>",
+        escape(caption)
+    )
+}
+
+/// A figure stretched to the page width (small renders are enlarged, pixels kept sharp).
+fn figure_wide(image: &str, caption: &str) -> String {
+    format!(
+        "<figure><img class=\"view\" src=\"{image}\" alt=\"{image}\"><figcaption>{}</figcaption></figure>",
         escape(caption)
     )
 }

@@ -1,8 +1,11 @@
 //! The report's plots, drawn by plotters into RGB buffers and saved as PNG.
 
+use std::ops::Range;
 use std::path::Path;
 use std::sync::Once;
 
+use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf32;
 use plotters::prelude::*;
 
 use super::{ReportError, TrainingLog};
@@ -24,7 +27,7 @@ fn register_font() {
 /// Draws with `draw` onto a white `SIZE` canvas and saves it as a PNG at `path`.
 fn save_plot(
     path: &Path,
-    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> DrawResult,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> DrawResult,
 ) -> Result<(), ReportError> {
     register_font();
     let (w, h) = SIZE;
@@ -45,9 +48,9 @@ fn save_plot(
     Ok(())
 }
 
-/// Moving average over a window of about 1 % of the points (at least 1).
+/// Moving average over a window of 5 % of the points (1 to 200).
 fn smooth(points: &[(f32, f32)]) -> Vec<(f32, f32)> {
-    let window = (points.len() / 100).max(1);
+    let window = (points.len() / 20).clamp(1, 200);
     let mut sum = 0.0;
     let mut out = Vec::with_capacity(points.len());
     for (i, &(x, y)) in points.iter().enumerate() {
@@ -74,26 +77,66 @@ fn range(values: impl Iterator<Item = f32>) -> (f32, f32) {
     (lo - pad, hi + pad)
 }
 
-fn x_range(log: &TrainingLog) -> std::ops::Range<f32> {
+fn x_range(log: &TrainingLog) -> Range<f32> {
     let last = log.steps.last().map_or(1, |s| s.iteration);
     0.0..last.max(1) as f32
 }
 
+type Chart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf32, RangedCoordf32>>;
+
+/// Tick label with as many decimals as a range of `span` needs.
+fn tick(value: f32, span: f32) -> String {
+    let decimals = (1.0 - span.max(1e-6).log10().floor()).clamp(0.0, 4.0) as usize;
+    format!("{value:.decimals$}")
+}
+
+/// A titled chart over `x` × `y` with labelled axes and a light grid.
+fn chart<'a, 'b>(
+    root: &'a DrawingArea<BitMapBackend<'b>, Shift>,
+    title: &str,
+    (x, y): (Range<f32>, Range<f32>),
+    (x_desc, y_desc): (&str, &str),
+) -> Result<Chart<'a, 'b>, Box<dyn std::error::Error>> {
+    let (x_span, y_span) = (x.end - x.start, y.end - y.start);
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, (FONT, 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x, y)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style((FONT, 14))
+        .x_label_formatter(&|v| tick(*v, x_span))
+        .y_label_formatter(&|v| tick(*v, y_span))
+        .light_line_style(RGBColor(238, 238, 238))
+        .draw()?;
+    Ok(chart)
+}
+
+/// The legend of the chart's labelled series.
+fn legend<'a, 'b: 'a>(chart: &mut Chart<'a, 'b>, position: SeriesLabelPosition) -> DrawResult {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .label_font((FONT, 14))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
+}
+
 /// A line series and its legend entry.
-fn line<'a, DB: DrawingBackend + 'a>(
-    chart: &mut ChartContext<
-        'a,
-        DB,
-        Cartesian2d<plotters::coord::types::RangedCoordf32, plotters::coord::types::RangedCoordf32>,
-    >,
+fn line(
+    chart: &mut Chart<'_, '_>,
     points: Vec<(f32, f32)>,
     color: RGBColor,
     width: u32,
     label: &str,
-) -> DrawResult
-where
-    DB::ErrorType: 'static,
-{
+) -> DrawResult {
     chart
         .draw_series(LineSeries::new(points, color.stroke_width(width)))?
         .label(label)
@@ -110,18 +153,8 @@ pub fn loss(path: &Path, log: &TrainingLog) -> Result<(), ReportError> {
         .collect();
     let (lo, hi) = range(raw.iter().map(|p| p.1));
     save_plot(path, |root| {
-        let mut chart = ChartBuilder::on(root)
-            .caption("Training loss", (FONT, 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(x_range(log), lo..hi)?;
-        chart
-            .configure_mesh()
-            .x_desc("iteration")
-            .y_desc("loss")
-            .label_style((FONT, 14))
-            .draw()?;
+        let axes = (x_range(log), lo..hi);
+        let mut chart = chart(root, "Training loss", axes, ("iteration", "loss"))?;
         line(
             &mut chart,
             raw.clone(),
@@ -136,13 +169,7 @@ pub fn loss(path: &Path, log: &TrainingLog) -> Result<(), ReportError> {
             2,
             "moving average",
         )?;
-        chart
-            .configure_series_labels()
-            .label_font((FONT, 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
-        Ok(())
+        legend(&mut chart, SeriesLabelPosition::UpperRight)
     })
 }
 
@@ -162,18 +189,8 @@ pub fn psnr(path: &Path, log: &TrainingLog) -> Result<(), ReportError> {
         .collect();
     let (lo, hi) = range(train.iter().chain(&heldout).map(|p| p.1));
     save_plot(path, |root| {
-        let mut chart = ChartBuilder::on(root)
-            .caption("PSNR", (FONT, 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(x_range(log), lo..hi)?;
-        chart
-            .configure_mesh()
-            .x_desc("iteration")
-            .y_desc("PSNR (dB)")
-            .label_style((FONT, 14))
-            .draw()?;
+        let axes = (x_range(log), lo..hi);
+        let mut chart = chart(root, "PSNR", axes, ("iteration", "PSNR (dB)"))?;
         line(
             &mut chart,
             train,
@@ -186,14 +203,7 @@ pub fn psnr(path: &Path, log: &TrainingLog) -> Result<(), ReportError> {
             line(&mut chart, heldout.clone(), red, 1, "held-out views")?;
             chart.draw_series(heldout.iter().map(|&p| Circle::new(p, 4, red.filled())))?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .label_font((FONT, 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
-        Ok(())
+        legend(&mut chart, SeriesLabelPosition::LowerRight)
     })
 }
 
@@ -206,28 +216,13 @@ pub fn gaussians(path: &Path, log: &TrainingLog) -> Result<(), ReportError> {
         .collect();
     let (_, hi) = range(counts.iter().map(|p| p.1));
     save_plot(path, |root| {
-        let mut chart = ChartBuilder::on(root)
-            .caption("Gaussians", (FONT, 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
-            .build_cartesian_2d(x_range(log), 0.0..hi)?;
-        chart
-            .configure_mesh()
-            .x_desc("iteration")
-            .y_desc("Gaussians")
-            .label_style((FONT, 14))
-            .y_label_formatter(&|v| format!("{v:.0}"))
-            .draw()?;
-        let grey = RGBColor(150, 150, 150);
+        let axes = (x_range(log), 0.0..hi);
+        let mut chart = chart(root, "Gaussians", axes, ("iteration", "Gaussians"))?;
+        let orange = RGBColor(230, 120, 30);
         for event in &log.densify {
             let x = event.iteration as f32;
-            chart.draw_series(DashedLineSeries::new(
-                [(x, 0.0), (x, hi)],
-                4,
-                4,
-                grey.stroke_width(1),
-            ))?;
+            let style = orange.stroke_width(1);
+            chart.draw_series(DashedLineSeries::new([(x, 0.0), (x, hi)], 4, 4, style))?;
         }
         line(&mut chart, counts, RGBColor(30, 120, 60), 2, "Gaussians")?;
         if !log.densify.is_empty() {
@@ -235,17 +230,10 @@ pub fn gaussians(path: &Path, log: &TrainingLog) -> Result<(), ReportError> {
                 .draw_series(std::iter::empty::<Circle<(f32, f32), u32>>())?
                 .label(format!("densification steps ({})", log.densify.len()))
                 .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], grey.stroke_width(1))
+                    PathElement::new(vec![(x, y), (x + 20, y)], orange.stroke_width(1))
                 });
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .label_font((FONT, 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
-        Ok(())
+        legend(&mut chart, SeriesLabelPosition::LowerRight)
     })
 }
 
@@ -259,30 +247,15 @@ pub fn lifespans(path: &Path, lifespans: &[f32]) -> Result<(), ReportError> {
     }
     let top = counts.iter().copied().max().unwrap_or(1).max(1) as f32 * 1.05;
     save_plot(path, |root| {
-        let mut chart = ChartBuilder::on(root)
-            .caption(
-                format!("Temporal lifespans of {} Gaussians", lifespans.len()),
-                (FONT, 22),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
-            .build_cartesian_2d(0.0f32..1.0f32, 0.0..top)?;
-        chart
-            .configure_mesh()
-            .x_desc("normalised lifespan ψ̄")
-            .y_desc("Gaussians")
-            .label_style((FONT, 14))
-            .y_label_formatter(&|v| format!("{v:.0}"))
-            .draw()?;
+        let title = format!("Temporal lifespans of {} Gaussians", lifespans.len());
+        let axes = (0.0..1.0, 0.0..top);
+        let mut chart = chart(root, &title, axes, ("normalised lifespan ψ̄", "Gaussians"))?;
         let blue = RGBColor(60, 110, 190);
+        let width = 1.0 / BINS as f32;
         chart.draw_series(counts.iter().enumerate().map(|(i, &c)| {
-            let x0 = i as f32 / BINS as f32;
+            let x0 = i as f32 * width;
             Rectangle::new(
-                [
-                    (x0 + 0.002, 0.0),
-                    (x0 + 1.0 / BINS as f32 - 0.002, c as f32),
-                ],
+                [(x0 + 0.002, 0.0), (x0 + width - 0.002, c as f32)],
                 blue.filled(),
             )
         }))?;
