@@ -95,3 +95,228 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(args) => cli::info::info(args),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    fn parse(args: &[&str]) -> Cli {
+        let mut full = vec!["tadgs"];
+        full.extend_from_slice(args);
+        Cli::try_parse_from(full).unwrap_or_else(|e| panic!("{args:?}: {e}"))
+    }
+
+    /// The clap definition is consistent (no clashing names, defaults that parse).
+    #[test]
+    fn command_definition_is_valid() {
+        Cli::command().debug_assert();
+    }
+
+    /// Property: every option documented by `--help` is accepted and lands in its field.
+    #[test]
+    fn every_documented_option_parses() {
+        let cli = parse(&[
+            "-vv",
+            "--quiet",
+            "train",
+            "s.ron",
+            "--iterations",
+            "50",
+            "--set",
+            "a.b=1",
+            "--set",
+            "c=2",
+            "--output",
+            "out",
+            "--checkpoint-every",
+            "10",
+            "--until",
+            "20",
+            "--eval-every",
+            "5",
+            "--no-report",
+            "--lpips",
+            "w.safetensors",
+            "--masks",
+            "m",
+            "--flow-threshold",
+            "0.5",
+            "--no-renders",
+        ]);
+        assert_eq!((cli.verbose, cli.quiet), (2, true));
+        let Command::Train(t) = cli.command else {
+            panic!("train")
+        };
+        assert_eq!(t.scene.as_deref(), Some(std::path::Path::new("s.ron")));
+        assert_eq!(t.iterations, Some(50));
+        assert_eq!(t.overrides, ["a.b=1", "c=2"]);
+        assert_eq!(t.output.as_deref(), Some(std::path::Path::new("out")));
+        assert_eq!(
+            (t.checkpoint_every, t.until, t.eval_every),
+            (Some(10), Some(20), Some(5))
+        );
+        assert!(t.no_report && t.eval.no_renders);
+        assert_eq!(t.eval.flow_threshold, 0.5);
+        assert!(t.eval.lpips.is_some() && t.eval.masks.is_some());
+
+        let Command::Train(t) = parse(&["train", "--resume", "runs/x", "-o", "o"]).command else {
+            panic!("train")
+        };
+        assert!(t.scene.is_none() && t.resume.is_some());
+
+        let Command::Eval(e) = parse(&[
+            "eval",
+            "run",
+            "--set",
+            "k=v",
+            "--split",
+            "train",
+            "--lpips",
+            "w",
+            "--masks",
+            "m",
+            "--flow-threshold",
+            "2",
+            "--no-renders",
+        ])
+        .command
+        else {
+            panic!("eval")
+        };
+        assert_eq!(e.split, cli::eval::Split::Train);
+        assert_eq!(e.overrides, ["k=v"]);
+
+        let Command::Render(r) = parse(&[
+            "render",
+            "run",
+            "--orbit",
+            "--frames",
+            "12",
+            "--time",
+            "0.5",
+            "--output",
+            "v.mp4",
+            "--fps",
+            "24",
+            "--background",
+            "1,1,1",
+            "--size",
+            "320x240",
+            "--up",
+            "0,1,0",
+            "--distance",
+            "0.8",
+            "--set",
+            "k=v",
+        ])
+        .command
+        else {
+            panic!("render")
+        };
+        assert!(r.cameras.orbit);
+        assert_eq!((r.frames, r.time, r.fps), (Some(12), Some(0.5), 24.0));
+        assert_eq!(r.background, Some([1.0, 1.0, 1.0]));
+        assert_eq!(r.size, Some((320, 240)));
+        assert_eq!(r.up, Some(glam::Vec3::Y));
+        assert_eq!(r.distance, 0.8);
+        for (args, check) in [
+            (vec!["render", "m.ply", "--heldout"], 0),
+            (vec!["render", "m.ply", "--heldout", "3"], 1),
+            (vec!["render", "m.ply", "--camera", "c.ron"], 2),
+            (vec!["render", "m.ply", "--path", "p.ron"], 3),
+        ] {
+            let Command::Render(r) = parse(&args).command else {
+                panic!("render")
+            };
+            match check {
+                0 => assert_eq!(r.cameras.heldout, Some(-1)),
+                1 => assert_eq!(r.cameras.heldout, Some(3)),
+                2 => assert!(r.cameras.camera.is_some()),
+                _ => assert!(r.cameras.path.is_some()),
+            }
+        }
+
+        let Command::Export(x) = parse(&[
+            "export",
+            "run",
+            "--format",
+            "ply",
+            "--times",
+            "0,0.5",
+            "--frames",
+            "1,2",
+            "--every-frame",
+            "--min-opacity",
+            "0.01",
+            "-o",
+            "out",
+            "--set",
+            "k=v",
+        ])
+        .command
+        else {
+            panic!("export")
+        };
+        assert_eq!(x.times, [0.0, 0.5]);
+        assert_eq!(x.frames, [1, 2]);
+        assert!(x.every_frame);
+        assert_eq!(x.min_opacity, 0.01);
+        let Command::Export(x) = parse(&["export", "run", "--format", "4d"]).command else {
+            panic!("export")
+        };
+        assert_eq!(x.format, cli::export::ExportFormat::FourD);
+
+        let Command::Masks(m) = parse(&[
+            "masks",
+            "s.ron",
+            "--set",
+            "k=v",
+            "--output",
+            "m",
+            "--flow-threshold",
+            "1.5",
+        ])
+        .command
+        else {
+            panic!("masks")
+        };
+        assert_eq!(m.flow_threshold, 1.5);
+
+        let Command::Info(i) = parse(&["info", "s.ron", "--set", "k=v", "--data"]).command else {
+            panic!("info")
+        };
+        assert!(i.data);
+    }
+
+    /// Property: contradictory or malformed options are refused by the parser.
+    #[test]
+    fn bad_options_are_refused() {
+        for args in [
+            vec!["tadgs", "train"],
+            vec!["tadgs", "train", "s.ron", "--resume", "r"],
+            vec!["tadgs", "render", "m", "--orbit", "--camera", "c.ron"],
+            vec!["tadgs", "render", "m", "--size", "640"],
+            vec!["tadgs", "render", "m", "--background", "2,0,0"],
+            vec!["tadgs", "export", "m", "--format", "obj"],
+        ] {
+            assert!(Cli::try_parse_from(&args).is_err(), "{args:?} parsed");
+        }
+    }
+
+    /// Every command's help explains each of its options (no option without help text).
+    #[test]
+    fn every_option_has_help() {
+        let cli = Cli::command();
+        for command in cli.get_subcommands() {
+            for arg in command.get_arguments() {
+                assert!(
+                    arg.get_help().is_some(),
+                    "{} --{:?} has no help",
+                    command.get_name(),
+                    arg.get_long()
+                );
+            }
+        }
+    }
+}

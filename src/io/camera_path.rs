@@ -41,7 +41,7 @@ pub enum CameraFileError {
 }
 
 /// A camera as written in a RON file.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSpec {
     pub width: u32,
@@ -50,8 +50,9 @@ pub struct CameraSpec {
     pub fy: f32,
     pub cx: f32,
     pub cy: f32,
-    /// World-to-camera, row-major (OpenCV convention); the last row must be 0 0 0 1.
-    pub world_to_camera: [[f32; 4]; 4],
+    /// World-to-camera, 4 rows of 4 (OpenCV convention); the last row must be 0 0 0 1.
+    /// (Lists rather than arrays, so the file can write `[[..], ..]`.)
+    pub world_to_camera: Vec<Vec<f32>>,
 }
 
 impl CameraSpec {
@@ -67,7 +68,11 @@ impl CameraSpec {
         if intrinsics.iter().any(|v| !v.is_finite()) || self.fx <= 0.0 || self.fy <= 0.0 {
             return Err("fx and fy must be positive, fx, fy, cx, cy finite".into());
         }
-        let m = self.world_to_camera;
+        let rows = &self.world_to_camera;
+        if rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
+            return Err("world_to_camera must be 4 rows of 4 numbers".into());
+        }
+        let m: [[f32; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| rows[i][j]));
         if m.iter().flatten().any(|v| !v.is_finite()) {
             return Err("world_to_camera holds a NaN or infinite value".into());
         }
@@ -110,13 +115,19 @@ impl CameraSpec {
             fy: camera.fy,
             cx: camera.cx,
             cy: camera.cy,
-            world_to_camera: camera.world_to_camera.transpose().to_cols_array_2d(),
+            world_to_camera: camera
+                .world_to_camera
+                .transpose()
+                .to_cols_array_2d()
+                .iter()
+                .map(|row| row.to_vec())
+                .collect(),
         }
     }
 }
 
 /// One key of a camera path.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PathKey {
     pub camera: CameraSpec,
@@ -371,6 +382,12 @@ mod tests {
             1.0,
         ));
         spec.world_to_camera[0][0] = 2.0;
+        // The file form a person writes: nested lists.
+        assert!(
+            ron::to_string(&spec)
+                .unwrap()
+                .contains("world_to_camera:[[")
+        );
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("bad.ron");
         std::fs::write(&path, ron::to_string(&spec).unwrap()).unwrap();
