@@ -234,6 +234,17 @@ pub type GaussianBundle = (
     (GradAccum, WarpedTime, Deformed, SplatSlot),
 );
 
+/// Adam moments of every parameter group.
+pub type AdamMoments = (
+    Adam<Position>,
+    Adam<Fourier>,
+    Adam<Temporal>,
+    Adam<Opacity>,
+    Adam<Rotation>,
+    Adam<Scale>,
+    Adam<Color>,
+);
+
 /// Gradients and Adam moments of every parameter group.
 pub type OptimizerState = (
     (
@@ -245,15 +256,7 @@ pub type OptimizerState = (
         Grad<Scale>,
         Grad<Color>,
     ),
-    (
-        Adam<Position>,
-        Adam<Fourier>,
-        Adam<Temporal>,
-        Adam<Opacity>,
-        Adam<Rotation>,
-        Adam<Scale>,
-        Adam<Color>,
-    ),
+    AdamMoments,
 );
 
 /// Zeroed gradients and Adam moments for every parameter group (for new Gaussians).

@@ -21,11 +21,12 @@ use safetensors::tensor::Dtype;
 use serde::{Deserialize, Serialize};
 
 use super::model::{
-    ModelError, NamedTensor, column, param_tensors, read_column, read_param_tensors, write_tensors,
+    ModelError, NamedTensor, checked_metadata, column, param_tensors, read_column,
+    read_param_tensors, write_tensors,
 };
 use crate::components::{
-    Adam, Color, Fourier, GaussianParams, GradAccum, Opacity, Param, ParamRefs, Position, Rotation,
-    Scale, Temporal,
+    Adam, AdamMoments, Color, Fourier, GaussianParams, GradAccum, Opacity, Param, ParamRefs,
+    Position, Rotation, Scale, Temporal,
 };
 use crate::report::TrainingLog;
 use crate::resources::{DensifyReport, Rng, TrainState, ViewOrder};
@@ -60,17 +61,6 @@ pub enum CheckpointError {
     #[error("checkpoint tensors: {0}")]
     Tensors(#[from] ModelError),
 }
-
-/// Adam moments of every parameter group of one Gaussian.
-pub type AdamMoments = (
-    Adam<Position>,
-    Adam<Fourier>,
-    Adam<Temporal>,
-    Adam<Opacity>,
-    Adam<Rotation>,
-    Adam<Scale>,
-    Adam<Color>,
-);
 
 /// One Gaussian's trainable state.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -388,15 +378,8 @@ fn read_gaussian_states(
         path: path.to_path_buf(),
         message,
     };
-    let (_, header) = safetensors::SafeTensors::read_metadata(bytes)
-        .map_err(|e| invalid(format!("not a valid safetensors file: {e}")))?;
-    let metadata = header.metadata().clone().unwrap_or_default();
-    if metadata.get("format").map(String::as_str) != Some(CHECKPOINT_FORMAT) {
-        return Err(invalid(format!(
-            "metadata `format` is {:?}, expected {CHECKPOINT_FORMAT:?}",
-            metadata.get("format")
-        )));
-    }
+    let metadata = checked_metadata(bytes, CHECKPOINT_FORMAT)
+        .map_err(|e| invalid(format!("not a valid checkpoint tensor file: {e}")))?;
     let iteration = metadata
         .get("iteration")
         .and_then(|s| s.parse::<u32>().ok());

@@ -124,15 +124,7 @@ impl Model {
             path: path.to_path_buf(),
             message,
         };
-        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-            .map_err(|e| format_error(e.to_string()))?;
-        let metadata = header.metadata().clone().unwrap_or_default();
-        if metadata.get("format").map(String::as_str) != Some(MODEL_FORMAT) {
-            return Err(format_error(format!(
-                "metadata `format` is {:?}, expected {MODEL_FORMAT:?}",
-                metadata.get("format")
-            )));
-        }
+        let metadata = checked_metadata(&bytes, MODEL_FORMAT).map_err(format_error)?;
         if metadata.get("version").map(String::as_str) != Some(MODEL_VERSION) {
             return Err(format_error(format!(
                 "metadata `version` is {:?}, this tadgs reads version {MODEL_VERSION}",
@@ -172,6 +164,22 @@ impl Model {
             config,
         })
     }
+}
+
+/// The metadata of a safetensors file, checked to name `expected` as its `format`.
+pub(crate) fn checked_metadata(
+    bytes: &[u8],
+    expected: &str,
+) -> Result<HashMap<String, String>, String> {
+    let (_, header) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| e.to_string())?;
+    let metadata = header.metadata().clone().unwrap_or_default();
+    if metadata.get("format").map(String::as_str) != Some(expected) {
+        return Err(format!(
+            "metadata `format` is {:?}, expected {expected:?}",
+            metadata.get("format")
+        ));
+    }
+    Ok(metadata)
 }
 
 /// A named `rows × width` tensor as little-endian bytes.
