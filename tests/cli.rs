@@ -392,3 +392,74 @@ fn export_render_and_info_on_a_trained_run() {
         "{stdout}"
     );
 }
+
+/// Property: Ctrl-C (SIGINT) during training stops after the current iteration with a
+/// checkpoint of that iteration and an error that says how to continue; the stopped run
+/// renders from its checkpoint and `--resume` finishes it.
+#[test]
+fn ctrl_c_writes_a_checkpoint_and_stops() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let run = dir.path().join("run");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args([
+            "train",
+            scene.to_str().unwrap(),
+            "--output",
+            run.to_str().unwrap(),
+        ])
+        .args(["--iterations", "2000", "--checkpoint-every", "0"])
+        .env("RUST_LOG", "info")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = BufReader::new(child.stderr.take().unwrap());
+    let mut text = String::new();
+    // Training has started once the first progress line is logged (every 5 %: 100 iterations).
+    loop {
+        let mut line = String::new();
+        assert!(
+            stderr.read_line(&mut line).unwrap() > 0,
+            "ended early: {text}"
+        );
+        text.push_str(&line);
+        if line.contains("iteration 100/2000") {
+            break;
+        }
+    }
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
+    let code = child.wait().unwrap().code();
+    assert_eq!(code, Some(1), "{rest}");
+    assert!(rest.contains("interrupted after iteration"), "{rest}");
+    assert!(rest.contains("--resume"), "{rest}");
+    let checkpoint = tadgs::io::checkpoint::Checkpoint::load(&run.join("checkpoint")).unwrap();
+    let stopped = checkpoint.state.iteration;
+    assert!((100..2000).contains(&stopped), "stopped at {stopped}");
+    assert!(
+        rest.contains(&format!("interrupted after iteration {stopped}:")),
+        "{rest}"
+    );
+    assert_eq!(checkpoint.log.steps.len(), stopped as usize);
+    assert!(!run.join("model.safetensors").exists());
+
+    // The unfinished run renders from its checkpoint.
+    let png = dir.path().join("mid.png");
+    run_ok(&[
+        "-q",
+        "render",
+        run.to_str().unwrap(),
+        "--frames",
+        "1",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(png.is_file());
+}

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use tadgs::data::Dataset;
+use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
 use tadgs::io::model::Model;
 use tadgs::io::ply::read_splat_ply;
 use tadgs::scene::SceneConfig;
@@ -19,7 +20,8 @@ pub struct Input {
 }
 
 impl Input {
-    /// Reads `path`: a run folder (scene.ron + model.safetensors), a model file
+    /// Reads `path`: a run folder (scene.ron + model.safetensors, or its checkpoint when the
+    /// run has not finished), a model file
     /// (`.safetensors`, as written by `train` or `export --format 4d`) or a 3DGS splat PLY.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Self> {
         let extension = path
@@ -28,7 +30,26 @@ impl Input {
             .map(str::to_ascii_lowercase);
         let (model, scene) = if path.is_dir() {
             let scene = load_with_overrides(&path.join("scene.ron"), overrides)?;
-            (Model::load(&path.join("model.safetensors"))?, Some(scene))
+            let model_path = path.join("model.safetensors");
+            let checkpoint = path.join("checkpoint");
+            let model = if !model_path.exists() && checkpoint.join(STATE_FILE).is_file() {
+                // A run stopped before its end: its latest checkpoint.
+                let checkpoint = Checkpoint::load(&checkpoint)?;
+                tracing::info!(
+                    "{} has no model yet: using its checkpoint of iteration {}",
+                    path.display(),
+                    checkpoint.state.iteration
+                );
+                Model {
+                    gaussians: checkpoint.gaussians.iter().map(|g| g.params).collect(),
+                    sh_degree: checkpoint.state.sh_degree,
+                    frame_count: None,
+                    config: Some(checkpoint.state.scene.model.clone()),
+                }
+            } else {
+                Model::load(&model_path)?
+            };
+            (model, Some(scene))
         } else {
             if !overrides.is_empty() {
                 bail!(

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -17,6 +18,22 @@ use super::{Ui, create_dir, load_dataset, load_with_overrides, scene_text, write
 
 /// Held-out views shown in the run report.
 const REPORT_VIEWS: usize = 4;
+
+/// Set by Ctrl-C: the training loop writes a checkpoint and stops.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// The first Ctrl-C stops training after the current iteration with a checkpoint; a second
+/// one stops at once.
+fn catch_ctrl_c() {
+    let result = ctrlc::set_handler(|| {
+        if INTERRUPTED.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    });
+    if let Err(e) = result {
+        tracing::warn!("Ctrl-C will stop training without a checkpoint: {e}");
+    }
+}
 
 /// `tadgs train`.
 #[derive(clap::Args, Debug)]
@@ -34,7 +51,8 @@ pub struct TrainCommand {
     /// Output folder (default: the scene's `output`; with --resume, the resumed run's folder).
     #[arg(long, short, value_name = "DIR")]
     pub output: Option<PathBuf>,
-    /// Continue a run from its checkpoint: DIR is the run folder or its checkpoint/ folder.
+    /// Continue a run from its checkpoint (written every --checkpoint-every iterations, at
+    /// --until and on Ctrl-C): DIR is the run folder or its checkpoint/ folder.
     /// The run goes on exactly as if it had not stopped (same final parameters); --set and
     /// --iterations still apply but then the result differs from an uninterrupted run.
     #[arg(long, value_name = "DIR", conflicts_with = "scene")]
@@ -98,6 +116,7 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
         config.train.eval_interval = n;
     }
 
+    catch_ctrl_c();
     let dataset = Arc::new(load_dataset(&config)?);
     create_dir(&output)?;
     write_atomic(&output.join("scene.ron"), scene_text(&config)?.as_bytes())?;
@@ -212,6 +231,16 @@ impl Run<'_> {
                     d.cloned,
                     d.split,
                     d.pruned
+                );
+            }
+            if INTERRUPTED.load(Ordering::SeqCst) {
+                bar.abandon();
+                let dir = self.save_checkpoint()?;
+                bail!(
+                    "interrupted after iteration {i}: checkpoint written to {}; continue with \
+                     `tadgs train --resume {}`",
+                    dir.display(),
+                    self.output.display()
                 );
             }
             if !state.loss.total.is_finite() {
