@@ -101,23 +101,25 @@ fn resumed_run_matches_uninterrupted_run() {
     assert_eq!(straight_log, log, "the training history differs");
 }
 
-fn saved_checkpoint(dir: &std::path::Path) {
+/// Trains `steps` iterations and saves a checkpoint into `dir`; returns the Gaussian count.
+fn saved_checkpoint(dir: &std::path::Path, steps: u32) -> usize {
     let (config, dataset) = tiny_scene();
     let mut trainer = Trainer::new(&config, dataset);
-    for _ in 0..3 {
+    for _ in 0..steps {
         trainer.step();
     }
     trainer
         .checkpoint(&config, &TrainingLog::default())
         .save(dir)
         .unwrap();
+    trainer.gaussian_count()
 }
 
 /// Property: a truncated tensor file is an error naming that file, not a panic.
 #[test]
 fn truncated_checkpoint_names_the_file() {
     let dir = tempfile::tempdir().unwrap();
-    saved_checkpoint(dir.path());
+    saved_checkpoint(dir.path(), 3);
     let path = dir.path().join(TENSORS_FILE);
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
@@ -130,17 +132,9 @@ fn truncated_checkpoint_names_the_file() {
 #[test]
 fn mismatched_checkpoint_files_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    saved_checkpoint(dir.path());
+    saved_checkpoint(dir.path(), 3);
     let other = tempfile::tempdir().unwrap();
-    let (config, dataset) = tiny_scene();
-    let mut trainer = Trainer::new(&config, dataset);
-    for _ in 0..5 {
-        trainer.step();
-    }
-    trainer
-        .checkpoint(&config, &TrainingLog::default())
-        .save(other.path())
-        .unwrap();
+    let n = saved_checkpoint(other.path(), 5);
     std::fs::copy(other.path().join(STATE_FILE), dir.path().join(STATE_FILE)).unwrap();
     let error = Checkpoint::load(dir.path()).unwrap_err().to_string();
     assert!(error.contains(LOG_FILE), "{error}");
@@ -149,7 +143,6 @@ fn mismatched_checkpoint_files_are_refused() {
     // Same iteration in every file, but the tensors hold another number of Gaussians.
     std::fs::copy(other.path().join(LOG_FILE), dir.path().join(LOG_FILE)).unwrap();
     let text = std::fs::read_to_string(dir.path().join(STATE_FILE)).unwrap();
-    let n = trainer.gaussian_count();
     let text = text.replace(&format!("gaussians: {n}"), &format!("gaussians: {}", n + 1));
     std::fs::write(dir.path().join(STATE_FILE), text).unwrap();
     std::fs::copy(
