@@ -158,7 +158,7 @@ pub fn parse_vec3(text: &str) -> Result<glam::Vec3, String> {
     }
 }
 
-/// Context for errors about the data a command needs.
+/// Fails unless `input` is a run folder (whose scene says where the data is).
 pub fn needs_run(what: &str, input: &Input) -> Result<()> {
     if input.scene.is_none() {
         bail!(
@@ -169,7 +169,7 @@ pub fn needs_run(what: &str, input: &Input) -> Result<()> {
     Ok(())
 }
 
-/// `dir` created, with a message naming it on failure.
+/// Creates the folder that will hold `path`, naming it on failure.
 pub fn ensure_parent(path: &Path) -> Result<()> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent)
