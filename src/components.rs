@@ -167,7 +167,7 @@ pub struct Adam<P: Param> {
 /// Every parameter of a new Gaussian, with zeroed gradients, Adam moments and statistics.
 ///
 /// This is the one place that lists the components of a Gaussian.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GaussianParams {
     pub position: Position,
     pub fourier: Fourier,
@@ -178,7 +178,32 @@ pub struct GaussianParams {
     pub color: Color,
 }
 
+/// The parameter components of one Gaussian, as a read-only query.
+pub type ParamRefs<'a> = (
+    &'a Position,
+    &'a Fourier,
+    &'a Temporal,
+    &'a Opacity,
+    &'a Rotation,
+    &'a Scale,
+    &'a Color,
+);
+
 impl GaussianParams {
+    /// Copies the components of a [`ParamRefs`] query item.
+    pub fn from_refs(refs: ParamRefs<'_>) -> Self {
+        let (position, fourier, temporal, opacity, rotation, scale, color) = refs;
+        Self {
+            position: *position,
+            fourier: *fourier,
+            temporal: *temporal,
+            opacity: *opacity,
+            rotation: *rotation,
+            scale: *scale,
+            color: *color,
+        }
+    }
+
     /// The full component bundle for spawning this Gaussian.
     pub fn bundle(self) -> GaussianBundle {
         (
@@ -209,6 +234,17 @@ pub type GaussianBundle = (
     (GradAccum, WarpedTime, Deformed, SplatSlot),
 );
 
+/// Adam moments of every parameter group.
+pub type AdamMoments = (
+    Adam<Position>,
+    Adam<Fourier>,
+    Adam<Temporal>,
+    Adam<Opacity>,
+    Adam<Rotation>,
+    Adam<Scale>,
+    Adam<Color>,
+);
+
 /// Gradients and Adam moments of every parameter group.
 pub type OptimizerState = (
     (
@@ -220,15 +256,7 @@ pub type OptimizerState = (
         Grad<Scale>,
         Grad<Color>,
     ),
-    (
-        Adam<Position>,
-        Adam<Fourier>,
-        Adam<Temporal>,
-        Adam<Opacity>,
-        Adam<Rotation>,
-        Adam<Scale>,
-        Adam<Color>,
-    ),
+    AdamMoments,
 );
 
 /// Zeroed gradients and Adam moments for every parameter group (for new Gaussians).

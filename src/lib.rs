@@ -59,6 +59,7 @@ pub mod io;
 pub mod metrics;
 pub mod model;
 pub mod raster;
+pub mod report;
 pub mod resources;
 pub mod scene;
 #[path = "../systems/mod.rs"]

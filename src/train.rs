@@ -17,14 +17,16 @@ use crate::data::init::{
 use crate::data::pointcloud::read_point_cloud;
 use crate::data::{Camera, DataError, Dataset};
 use crate::gpu::{GpuError, GpuRasterizer};
+use crate::io::checkpoint::Checkpoint;
 use crate::io::image::Image;
 use crate::io::model::Model;
 use crate::metrics::eval::{ViewScores, mean, score_view};
 use crate::metrics::lpips::{Lpips, LpipsError};
 use crate::metrics::psnr::psnr;
-use crate::model::deform::{init_temporal_raw, logit};
+use crate::model::deform::{init_temporal_raw, lifespan_fraction, logit};
 use crate::model::sh::rgb_to_sh_dc;
 use crate::raster::RenderOutput;
+use crate::report::TrainingLog;
 use crate::resources::*;
 use crate::scene::{InitMethod, SceneConfig};
 use crate::systems::{render_schedule, training_schedule};
@@ -97,6 +99,19 @@ pub fn insert_render_resources(
     };
     world.insert_resource(SplatBuffers::default());
     Ok(())
+}
+
+/// A checkpoint does not fit the data it is resumed on.
+#[derive(Debug, thiserror::Error)]
+pub enum ResumeError {
+    #[error(
+        "the checkpoint's view order refers to training view {index}, but the data has {views} \
+         training views: the data changed since the checkpoint was written"
+    )]
+    ViewOrder { index: usize, views: usize },
+    /// The checkpoint's backend could not be opened.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
 }
 
 /// The initial Gaussians could not be made.
@@ -326,6 +341,49 @@ impl Trainer {
         Self::try_from_model(scene, dataset, model).unwrap_or_else(|e| panic!("{e}"))
     }
 
+    /// Continues a run from `checkpoint`: the world holds its Gaussians with their optimiser
+    /// state, its counters, view order and RNG, so stepping on gives the same result as the
+    /// run that wrote it. `dataset` must be the checkpoint scene's data.
+    pub fn from_checkpoint(
+        checkpoint: &Checkpoint,
+        dataset: Arc<Dataset>,
+    ) -> Result<Self, ResumeError> {
+        let views = dataset.train.len();
+        if let Some(&index) = checkpoint.state.view_order.iter().find(|&&i| i >= views) {
+            return Err(ResumeError::ViewOrder { index, views });
+        }
+        let mut world = World::new();
+        insert_resources(&mut world, &checkpoint.state.scene, dataset)?;
+        checkpoint.restore_into(&mut world);
+        Ok(Self::with_world(world))
+    }
+
+    /// The run's full state for a checkpoint (`scene`: the settings it was started with).
+    pub fn checkpoint(&mut self, scene: &SceneConfig, log: &TrainingLog) -> Checkpoint {
+        Checkpoint::from_world(&mut self.world, scene, log)
+    }
+
+    /// PSNR of the last training iteration's render against its training image.
+    pub fn last_view_psnr(&self) -> f32 {
+        let render = &self.world.resource::<SplatBuffers>().render.image;
+        let target = &self.world.resource::<LossImage>().target;
+        if render.data.is_empty() || render.data.len() != target.data.len() {
+            return f32::NAN;
+        }
+        psnr(render, target)
+    }
+
+    /// Normalised temporal lifespan ψ̄ of every Gaussian (see
+    /// [`crate::model::deform::lifespan_fraction`]).
+    pub fn lifespans(&mut self) -> Vec<f32> {
+        let settings = self.world.resource::<Settings>().clone();
+        self.world
+            .query::<&Temporal>()
+            .iter(&self.world)
+            .map(|t| lifespan_fraction(settings.opacity, t.scale, t.center, &settings.warp))
+            .collect()
+    }
+
     fn with_world(world: World) -> Self {
         Self {
             world,
@@ -420,6 +478,11 @@ impl Trainer {
     /// The trained Gaussians and the SH degree reached.
     pub fn model(&mut self) -> Model {
         let sh_degree = self.state().sh_degree;
-        Model::from_world(&mut self.world, sh_degree)
+        let settings = self.world.resource::<Settings>();
+        let (frame_count, config) = (settings.frame_count, settings.model.clone());
+        let mut model = Model::from_world(&mut self.world, sh_degree);
+        model.frame_count = Some(frame_count);
+        model.config = Some(config);
+        model
     }
 }

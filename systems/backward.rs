@@ -109,7 +109,7 @@ pub fn backward_parameters(
     gaussians
         .par_iter_mut()
         .for_each(|(inputs, deformed, slot, grads)| {
-            let (_, fourier, temporal, opacity, rotation, scale, color, warped) = inputs;
+            let ((_, fourier, temporal, opacity, rotation, scale, color), warped) = inputs;
             let (
                 mut g_pos,
                 mut g_fourier,

@@ -3,24 +3,13 @@
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 
-use crate::components::{
-    Color, Deformed, Fourier, Opacity, Position, Rotation, Scale, Temporal, WarpedTime,
-};
+use crate::components::{Deformed, ParamRefs, WarpedTime};
 use crate::model::deform::{fourier_offset, rotation_at, scale_at, temporal_opacity};
 use crate::model::sh::sh_to_rgb;
 use crate::resources::{Settings, TrainState, ViewSample};
 
 /// The parameter components the deformation reads.
-pub type DeformInputs<'a> = (
-    &'a Position,
-    &'a Fourier,
-    &'a Temporal,
-    &'a Opacity,
-    &'a Rotation,
-    &'a Scale,
-    &'a Color,
-    &'a WarpedTime,
-);
+pub type DeformInputs<'a> = (ParamRefs<'a>, &'a WarpedTime);
 
 /// Evaluates every Gaussian at the sampled time into its [`Deformed`] component.
 pub fn deform(
@@ -35,7 +24,7 @@ pub fn deform(
     let sh_degree = state.sh_degree;
     let eye = sample.camera.center();
     gaussians.par_iter_mut().for_each(
-        |((pos, fourier, temporal, opacity, rotation, scale, color, warped), mut out)| {
+        |(((pos, fourier, temporal, opacity, rotation, scale, color), warped), mut out)| {
             let dtw = warped.dtw;
             let mean = Vec3::from_array(pos.mean)
                 + fourier_offset(

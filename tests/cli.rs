@@ -188,3 +188,278 @@ fn bad_input_fails_with_one_line_naming_the_file() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("model.safetensors"), "{stderr}");
 }
+
+fn run_ok(args: &[&str]) -> String {
+    let out = tadgs(args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Property: `train --until 15` (a stop between densification steps, with a checkpoint
+/// written every 7 iterations on the way) followed by `train --resume` ends with the same
+/// parameters and the same held-out scores as one uninterrupted `train`; the resumed run
+/// writes the report with the whole run's history.
+#[test]
+fn interrupted_and_resumed_training_matches_an_uninterrupted_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let scene = scene.to_str().unwrap();
+    let straight = dir.path().join("straight");
+    let resumed = dir.path().join("resumed");
+    let (straight_s, resumed_s) = (straight.to_str().unwrap(), resumed.to_str().unwrap());
+    run_ok(&["-q", "train", scene, "--output", straight_s, "--no-renders"]);
+
+    let stdout = run_ok(&[
+        "-q",
+        "train",
+        scene,
+        "--output",
+        resumed_s,
+        "--until",
+        "15",
+        "--checkpoint-every",
+        "7",
+    ]);
+    assert!(
+        stdout.contains("stopped after iteration 15 of 40"),
+        "{stdout}"
+    );
+    assert!(!resumed.join("model.safetensors").exists());
+    let state = std::fs::read_to_string(resumed.join("checkpoint/state.ron")).unwrap();
+    assert!(state.contains("iteration: 15"), "{state}");
+    run_ok(&["-q", "train", "--resume", resumed_s, "--no-renders"]);
+
+    let a = tadgs::io::model::Model::load(&straight.join("model.safetensors")).unwrap();
+    let b = tadgs::io::model::Model::load(&resumed.join("model.safetensors")).unwrap();
+    assert_eq!(a.gaussians.len(), b.gaussians.len());
+    assert!(
+        a.gaussians == b.gaussians,
+        "parameters differ after resuming"
+    );
+    let (sa, sb) = (summary(&straight), summary(&resumed));
+    for key in ["psnr", "ssim", "masked_psnr", "gaussians"] {
+        assert_eq!(sa[key], sb[key], "{key}");
+    }
+
+    let checkpoint = tadgs::io::checkpoint::Checkpoint::load(&resumed.join("checkpoint")).unwrap();
+    assert_eq!(checkpoint.state.iteration, 40);
+    let iterations: Vec<u32> = checkpoint.log.steps.iter().map(|s| s.iteration).collect();
+    assert_eq!(iterations, (1..=40).collect::<Vec<_>>());
+    let page = std::fs::read_to_string(resumed.join("report/index.html")).unwrap();
+    for image in [
+        "loss.png",
+        "psnr.png",
+        "gaussians.png",
+        "lifespans.png",
+        "view_0.png",
+    ] {
+        assert!(page.contains(image), "{image} not on the page");
+        let png = image::open(resumed.join("report").join(image)).expect("a readable PNG");
+        assert!(png.width() > 0);
+    }
+
+    // Resuming a finished run has nothing to do and says so.
+    let out = tadgs(&["-q", "train", "--resume", resumed_s]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("already at iteration 40"));
+}
+
+/// Property: `export` writes per-frame PLYs that read back as splat files with the run's SH
+/// degree and the 4D model with its frame count; `render` draws that model from a RON camera
+/// into a PNG of the camera's size, writes PNG frames where no ffmpeg is found, and an MP4
+/// where it is; `info` describes the run.
+#[test]
+fn export_render_and_info_on_a_trained_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let run = dir.path().join("run");
+    let run_s = run.to_str().unwrap();
+    run_ok(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "--output",
+        run_s,
+        "--iterations",
+        "12",
+        "--no-renders",
+        "--no-report",
+    ]);
+    let model = tadgs::io::model::Model::load(&run.join("model.safetensors")).unwrap();
+
+    let frames = dir.path().join("frames");
+    run_ok(&[
+        "-q",
+        "export",
+        run_s,
+        "--frames",
+        "0,5",
+        "-o",
+        frames.to_str().unwrap(),
+    ]);
+    for name in ["frame_0000.ply", "frame_0005.ply"] {
+        let cloud = tadgs::io::ply::read_splat_ply(&frames.join(name)).unwrap();
+        assert_eq!(cloud.sh_degree, model.sh_degree);
+        assert!(!cloud.splats.is_empty() && cloud.splats.len() <= model.gaussians.len());
+    }
+    let four_d = dir.path().join("model_4d.safetensors");
+    run_ok(&[
+        "-q",
+        "export",
+        run_s,
+        "--format",
+        "4d",
+        "-o",
+        four_d.to_str().unwrap(),
+    ]);
+    let exported = tadgs::io::model::Model::load(&four_d).unwrap();
+    assert_eq!(exported.frame_count, Some(6));
+    assert!(exported.gaussians == model.gaussians);
+
+    let camera = dir.path().join("camera.ron");
+    std::fs::write(
+        &camera,
+        "(width: 40, height: 30, fx: 40.0, fy: 40.0, cx: 20.0, cy: 15.0,\n\
+         world_to_camera: [[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.5], [0.0, 0.0, -1.0, 4.0], [0.0, 0.0, 0.0, 1.0]])",
+    )
+    .unwrap();
+    let png = dir.path().join("one.png");
+    run_ok(&[
+        "-q",
+        "render",
+        four_d.to_str().unwrap(),
+        "--camera",
+        camera.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--time",
+        "0.5",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    let image = image::open(&png).unwrap();
+    assert_eq!((image.width(), image.height()), (40, 30));
+
+    // Without ffmpeg on PATH an .mp4 request falls back to PNG frames in a folder.
+    let video = dir.path().join("orbit.mp4");
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args([
+            "-q",
+            "render",
+            run_s,
+            "--frames",
+            "3",
+            "-o",
+            video.to_str().unwrap(),
+        ])
+        .env("PATH", "")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for k in 0..3 {
+        assert!(dir.path().join(format!("orbit/frame_{k:04}.png")).is_file());
+    }
+    if tadgs::io::video::ffmpeg_available() {
+        run_ok(&[
+            "-q",
+            "render",
+            run_s,
+            "--heldout",
+            "-o",
+            video.to_str().unwrap(),
+        ]);
+        let bytes = std::fs::read(&video).unwrap();
+        assert_eq!(&bytes[4..8], b"ftyp", "an MP4 file");
+    } else {
+        eprintln!("ffmpeg not installed: MP4 output not checked");
+    }
+
+    let stdout = run_ok(&["info", run_s]);
+    assert!(
+        stdout.contains(&format!("Gaussians        {}", model.gaussians.len())),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("checkpoint       iteration 12 of 12"),
+        "{stdout}"
+    );
+}
+
+/// Property: Ctrl-C (SIGINT) during training stops after the current iteration with a
+/// checkpoint of that iteration and an error that says how to continue; the stopped run
+/// renders from its checkpoint and `--resume` finishes it.
+#[test]
+fn ctrl_c_writes_a_checkpoint_and_stops() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let run = dir.path().join("run");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args([
+            "train",
+            scene.to_str().unwrap(),
+            "--output",
+            run.to_str().unwrap(),
+        ])
+        .args(["--iterations", "2000", "--checkpoint-every", "0"])
+        .env("RUST_LOG", "info")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = BufReader::new(child.stderr.take().unwrap());
+    let mut text = String::new();
+    // Training has started once the first progress line is logged (every 5 %: 100 iterations).
+    loop {
+        let mut line = String::new();
+        assert!(
+            stderr.read_line(&mut line).unwrap() > 0,
+            "ended early: {text}"
+        );
+        text.push_str(&line);
+        if line.contains("iteration 100/2000") {
+            break;
+        }
+    }
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
+    let code = child.wait().unwrap().code();
+    assert_eq!(code, Some(1), "{rest}");
+    assert!(rest.contains("interrupted after iteration"), "{rest}");
+    assert!(rest.contains("--resume"), "{rest}");
+    let checkpoint = tadgs::io::checkpoint::Checkpoint::load(&run.join("checkpoint")).unwrap();
+    let stopped = checkpoint.state.iteration;
+    assert!((100..2000).contains(&stopped), "stopped at {stopped}");
+    assert!(
+        rest.contains(&format!("interrupted after iteration {stopped}:")),
+        "{rest}"
+    );
+    assert_eq!(checkpoint.log.steps.len(), stopped as usize);
+    assert!(!run.join("model.safetensors").exists());
+
+    // The unfinished run renders from its checkpoint.
+    let png = dir.path().join("mid.png");
+    run_ok(&[
+        "-q",
+        "render",
+        run.to_str().unwrap(),
+        "--frames",
+        "1",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(png.is_file());
+}

@@ -29,6 +29,8 @@ fn valid_model_bytes(dir: &Path) -> Vec<u8> {
     let model = Model {
         gaussians: vec![GaussianParams::default(); 3],
         sh_degree: 1,
+        frame_count: None,
+        config: None,
     };
     model.save(&path).unwrap();
     std::fs::read(path).unwrap()

@@ -10,12 +10,9 @@
 //! NumPy `.npz`/`.npy` clouds are not read: their array names are not standardised, so a
 //! guess would risk a silently wrong cloud. Convert them to PLY.
 
-use std::fs::File;
-use std::io::BufReader;
 use std::path::Path;
 
 use glam::Vec3;
-use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult};
 
 use super::DataError;
@@ -92,73 +89,36 @@ fn color_component(property: &Property) -> Option<f32> {
     }
 }
 
-/// Any element other than `vertex`: parsed (to move past it) and dropped.
-struct SkippedElement;
-
-impl PropertyAccess for SkippedElement {
-    fn new() -> Self {
-        Self
-    }
-}
-
 /// Reads the `vertex` element of a PLY file.
 fn read_ply(path: &Path) -> Result<Vec<InitPoint>, DataError> {
-    let file = File::open(path).map_err(|e| DataError::io(path, e))?;
-    let mut reader = Reader::new(BufReader::new(file));
-    let vertex_parser = Parser::<PlyVertex>::new();
-    let header = vertex_parser
-        .read_header(&mut reader)
-        .map_err(|e| DataError::format(path, format!("invalid PLY header: {e}")))?;
-    let Some(vertex_def) = header.elements.get("vertex") else {
-        let found: Vec<&str> = header.elements.keys().map(String::as_str).collect();
-        return Err(DataError::format(
-            path,
-            format!("PLY has no `vertex` element (elements found: {found:?})"),
-        ));
-    };
-    for axis in ["x", "y", "z"] {
-        if !vertex_def.properties.contains_key(axis) {
-            return Err(DataError::field(
-                path,
-                format!("vertex.{axis}"),
-                "missing: a point cloud needs vertex properties x, y and z",
-            ));
-        }
-    }
-    let color_channels = ["red", "green", "blue"]
-        .iter()
-        .filter(|c| vertex_def.properties.contains_key(**c))
-        .count();
-    if color_channels != 0 && color_channels != 3 {
-        return Err(DataError::field(
-            path,
-            "vertex.red/green/blue",
-            "only some colour channels are present: give all three or none",
-        ));
-    }
-
-    // Elements are stored in header order: skip the ones before `vertex`.
-    let mut vertices = Vec::new();
-    for (name, element_def) in &header.elements {
-        let body_error = |e: ply_rs_bw::parser::ParseError| {
-            DataError::format(
-                path,
-                format!(
-                    "truncated or malformed PLY body in element `{name}` ({} declared): {e}",
-                    element_def.count
-                ),
-            )
-        };
-        if name == "vertex" {
-            vertices = vertex_parser
-                .read_payload_for_element(&mut reader, element_def, &header)
-                .map_err(body_error)?;
-            break;
-        }
-        Parser::<SkippedElement>::new()
-            .read_payload_for_element(&mut reader, element_def, &header)
-            .map_err(body_error)?;
-    }
+    let vertices: Vec<PlyVertex> = crate::io::ply::read_vertex_element(
+        path,
+        |e| DataError::io(path, e),
+        |message| DataError::format(path, message),
+        |vertex_def| {
+            for axis in ["x", "y", "z"] {
+                if !vertex_def.properties.contains_key(axis) {
+                    return Err(DataError::field(
+                        path,
+                        format!("vertex.{axis}"),
+                        "missing: a point cloud needs vertex properties x, y and z",
+                    ));
+                }
+            }
+            let color_channels = ["red", "green", "blue"]
+                .iter()
+                .filter(|c| vertex_def.properties.contains_key(**c))
+                .count();
+            if color_channels != 0 && color_channels != 3 {
+                return Err(DataError::field(
+                    path,
+                    "vertex.red/green/blue",
+                    "only some colour channels are present: give all three or none",
+                ));
+            }
+            Ok(())
+        },
+    )?;
 
     vertices
         .into_iter()

@@ -1,7 +1,11 @@
-//! File input and output: images and trained models (more formats join here: PLY, video).
+//! File input and output: images, trained models, checkpoints, splat PLY files and videos.
 
+pub mod camera_path;
+pub mod checkpoint;
 pub mod image;
 pub mod model;
+pub mod ply;
+pub mod video;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -3,7 +3,9 @@
 //!
 //! The file holds all temporal parameters (Fourier motion, temporal centre and scale,
 //! rotation and scale polynomials), so `tadgs eval` and `tadgs render` can rebuild the model
-//! exactly. Metadata records the format version and the SH degree in use.
+//! exactly. Metadata records the format version, the SH degree in use and, when known, the
+//! number of frames and the deformation settings (`model` of the scene file, as RON), which
+//! make the file self-contained: `tadgs render` and `tadgs export` need nothing else.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -12,8 +14,9 @@ use bevy_ecs::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
 use crate::components::{
-    Color, Fourier, GaussianParams, Opacity, Param, Position, Rotation, Scale, Temporal,
+    Color, Fourier, GaussianParams, Opacity, Param, ParamRefs, Position, Rotation, Scale, Temporal,
 };
+use crate::scene::{DataSource, ModelConfig, SceneConfig};
 
 /// Value of the `format` metadata key.
 pub const MODEL_FORMAT: &str = "tadgs-4d-gaussians";
@@ -48,38 +51,42 @@ pub enum ModelError {
 pub struct Model {
     pub gaussians: Vec<GaussianParams>,
     pub sh_degree: u32,
+    /// Frames T of the sequence it was trained on (sets the TOW window); `None` in files that
+    /// do not record it.
+    pub frame_count: Option<usize>,
+    /// The deformation settings it was trained with; `None` in files that do not record them.
+    pub config: Option<ModelConfig>,
 }
 
 impl Model {
     /// Reads every Gaussian's parameters out of `world`.
     pub fn from_world(world: &mut World, sh_degree: u32) -> Self {
         let gaussians = world
-            .query::<(
-                &Position,
-                &Fourier,
-                &Temporal,
-                &Opacity,
-                &Rotation,
-                &Scale,
-                &Color,
-            )>()
+            .query::<ParamRefs>()
             .iter(world)
-            .map(
-                |(position, fourier, temporal, opacity, rotation, scale, color)| GaussianParams {
-                    position: *position,
-                    fourier: *fourier,
-                    temporal: *temporal,
-                    opacity: *opacity,
-                    rotation: *rotation,
-                    scale: *scale,
-                    color: *color,
-                },
-            )
+            .map(GaussianParams::from_refs)
             .collect();
         Self {
             gaussians,
             sh_degree,
+            frame_count: None,
+            config: None,
         }
+    }
+
+    /// A scene that renders this model on its own: its deformation settings (the defaults when
+    /// unknown) and `background`. The data source is a placeholder that is never loaded.
+    pub fn scene(&self, name: &str, background: [f32; 3]) -> SceneConfig {
+        let mut scene = SceneConfig::new(
+            name,
+            DataSource::Synthetic(crate::data::synthetic::demo_scene()),
+        );
+        if let Some(config) = &self.config {
+            scene.model = config.clone();
+        }
+        scene.model.sh_degree = self.sh_degree;
+        scene.train.background = background;
+        scene
     }
 
     /// Spawns every Gaussian into `world` with fresh optimiser state.
@@ -89,38 +96,22 @@ impl Model {
 
     /// Writes the model to `path` (temporary file, then rename: complete or absent).
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        let tensors = [
-            column::<Position>(&self.gaussians, |g| &g.position),
-            column::<Fourier>(&self.gaussians, |g| &g.fourier),
-            column::<Temporal>(&self.gaussians, |g| &g.temporal),
-            column::<Opacity>(&self.gaussians, |g| &g.opacity),
-            column::<Rotation>(&self.gaussians, |g| &g.rotation),
-            column::<Scale>(&self.gaussians, |g| &g.scale),
-            column::<Color>(&self.gaussians, |g| &g.color),
-        ];
-        let n = self.gaussians.len();
-        let views: Vec<(&str, TensorView<'_>)> = tensors
-            .iter()
-            .map(|(name, width, bytes)| {
-                let view = TensorView::new(Dtype::F32, vec![n, *width], bytes)
-                    .expect("shape matches the data written");
-                (*name, view)
-            })
-            .collect();
-        let metadata = HashMap::from([
+        let mut metadata = HashMap::from([
             ("format".to_string(), MODEL_FORMAT.to_string()),
             ("version".to_string(), MODEL_VERSION.to_string()),
             ("sh_degree".to_string(), self.sh_degree.to_string()),
         ]);
-        let bytes =
-            safetensors::serialize(views, Some(metadata)).map_err(|e| ModelError::Format {
+        if let Some(frames) = self.frame_count {
+            metadata.insert("frame_count".into(), frames.to_string());
+        }
+        if let Some(config) = &self.config {
+            let text = ron::to_string(config).map_err(|e| ModelError::Format {
                 path: path.to_path_buf(),
                 message: e.to_string(),
             })?;
-        super::write_atomic(path, &bytes).map_err(|source| ModelError::Write {
-            path: path.to_path_buf(),
-            source,
-        })
+            metadata.insert("model".into(), text);
+        }
+        write_tensors(path, &param_tensors(&self.gaussians, ""), metadata)
     }
 
     /// Reads a model written by [`Model::save`], checking every tensor's type and shape.
@@ -133,15 +124,7 @@ impl Model {
             path: path.to_path_buf(),
             message,
         };
-        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-            .map_err(|e| format_error(e.to_string()))?;
-        let metadata = header.metadata().clone().unwrap_or_default();
-        if metadata.get("format").map(String::as_str) != Some(MODEL_FORMAT) {
-            return Err(format_error(format!(
-                "metadata `format` is {:?}, expected {MODEL_FORMAT:?}",
-                metadata.get("format")
-            )));
-        }
+        let metadata = checked_metadata(&bytes, MODEL_FORMAT).map_err(format_error)?;
         if metadata.get("version").map(String::as_str) != Some(MODEL_VERSION) {
             return Err(format_error(format!(
                 "metadata `version` is {:?}, this tadgs reads version {MODEL_VERSION}",
@@ -153,62 +136,161 @@ impl Model {
             .and_then(|s| s.parse::<u32>().ok())
             .filter(|&d| d <= 3)
             .ok_or_else(|| format_error("metadata `sh_degree` must be 0..=3".into()))?;
+        let frame_count =
+            match metadata.get("frame_count") {
+                None => None,
+                Some(text) => Some(text.parse::<usize>().ok().filter(|&n| n > 0).ok_or_else(
+                    || {
+                        format_error(format!(
+                            "metadata `frame_count` is {text:?}, expected a positive integer"
+                        ))
+                    },
+                )?),
+            };
+        let config = match metadata.get("model") {
+            None => None,
+            Some(text) => Some(
+                ron::from_str::<ModelConfig>(text)
+                    .map_err(|e| format_error(format!("metadata `model`: {e}")))?,
+            ),
+        };
         let tensors = safetensors::SafeTensors::deserialize(&bytes)
             .map_err(|e| format_error(e.to_string()))?;
-        let positions = read_column::<Position>(path, &tensors, None)?;
-        let n = positions.len();
-        let fourier = read_column::<Fourier>(path, &tensors, Some(n))?;
-        let temporal = read_column::<Temporal>(path, &tensors, Some(n))?;
-        let opacity = read_column::<Opacity>(path, &tensors, Some(n))?;
-        let rotation = read_column::<Rotation>(path, &tensors, Some(n))?;
-        let scale = read_column::<Scale>(path, &tensors, Some(n))?;
-        let color = read_column::<Color>(path, &tensors, Some(n))?;
-        let gaussians = (0..n)
-            .map(|i| GaussianParams {
-                position: positions[i],
-                fourier: fourier[i],
-                temporal: temporal[i],
-                opacity: opacity[i],
-                rotation: rotation[i],
-                scale: scale[i],
-                color: color[i],
-            })
-            .collect();
+        let gaussians = read_param_tensors(path, &tensors, "", None)?;
         Ok(Self {
             gaussians,
             sh_degree,
+            frame_count,
+            config,
         })
     }
 }
 
-/// One component of every Gaussian as little-endian f32 bytes: (name, fields, bytes).
-fn column<P: Param>(
-    gaussians: &[GaussianParams],
-    field: impl Fn(&GaussianParams) -> &P,
-) -> (&'static str, usize, Vec<u8>) {
+/// The metadata of a safetensors file, checked to name `expected` as its `format`.
+pub(crate) fn checked_metadata(
+    bytes: &[u8],
+    expected: &str,
+) -> Result<HashMap<String, String>, String> {
+    let (_, header) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| e.to_string())?;
+    let metadata = header.metadata().clone().unwrap_or_default();
+    if metadata.get("format").map(String::as_str) != Some(expected) {
+        return Err(format!(
+            "metadata `format` is {:?}, expected {expected:?}",
+            metadata.get("format")
+        ));
+    }
+    Ok(metadata)
+}
+
+/// A named `rows × width` tensor as little-endian bytes.
+pub(crate) struct NamedTensor {
+    pub name: String,
+    pub dtype: Dtype,
+    pub width: usize,
+    pub bytes: Vec<u8>,
+}
+
+/// Serialises `tensors` (all with the same number of rows) and `metadata` to `path`,
+/// atomically.
+pub(crate) fn write_tensors(
+    path: &Path,
+    tensors: &[NamedTensor],
+    metadata: HashMap<String, String>,
+) -> Result<(), ModelError> {
+    let views: Vec<(&str, TensorView<'_>)> = tensors
+        .iter()
+        .map(|t| {
+            let rows = t.bytes.len() / (4 * t.width.max(1));
+            let view = TensorView::new(t.dtype, vec![rows, t.width], &t.bytes)
+                .expect("shape matches the data written");
+            (t.name.as_str(), view)
+        })
+        .collect();
+    let bytes = safetensors::serialize(views, Some(metadata)).map_err(|e| ModelError::Format {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    super::write_atomic(path, &bytes).map_err(|source| ModelError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Every parameter component of `gaussians`, one tensor each, named `prefix` + component name.
+pub(crate) fn param_tensors(gaussians: &[GaussianParams], prefix: &str) -> Vec<NamedTensor> {
+    vec![
+        column(prefix, gaussians.iter().map(|g| &g.position)),
+        column(prefix, gaussians.iter().map(|g| &g.fourier)),
+        column(prefix, gaussians.iter().map(|g| &g.temporal)),
+        column(prefix, gaussians.iter().map(|g| &g.opacity)),
+        column(prefix, gaussians.iter().map(|g| &g.rotation)),
+        column(prefix, gaussians.iter().map(|g| &g.scale)),
+        column(prefix, gaussians.iter().map(|g| &g.color)),
+    ]
+}
+
+/// Reads the tensors written by [`param_tensors`] with the same `prefix`; `rows` must match
+/// when given.
+pub(crate) fn read_param_tensors(
+    path: &Path,
+    tensors: &safetensors::SafeTensors<'_>,
+    prefix: &str,
+    rows: Option<usize>,
+) -> Result<Vec<GaussianParams>, ModelError> {
+    let positions = read_column::<Position>(path, tensors, prefix, rows)?;
+    let n = Some(positions.len());
+    let fourier = read_column::<Fourier>(path, tensors, prefix, n)?;
+    let temporal = read_column::<Temporal>(path, tensors, prefix, n)?;
+    let opacity = read_column::<Opacity>(path, tensors, prefix, n)?;
+    let rotation = read_column::<Rotation>(path, tensors, prefix, n)?;
+    let scale = read_column::<Scale>(path, tensors, prefix, n)?;
+    let color = read_column::<Color>(path, tensors, prefix, n)?;
+    Ok((0..positions.len())
+        .map(|i| GaussianParams {
+            position: positions[i],
+            fourier: fourier[i],
+            temporal: temporal[i],
+            opacity: opacity[i],
+            rotation: rotation[i],
+            scale: scale[i],
+            color: color[i],
+        })
+        .collect())
+}
+
+/// One component of every Gaussian as a tensor named `prefix` + `P::NAME`.
+pub(crate) fn column<'a, P: Param>(prefix: &str, rows: impl Iterator<Item = &'a P>) -> NamedTensor {
     let width = P::default().values().len();
-    let mut bytes = Vec::with_capacity(gaussians.len() * width * 4);
-    for g in gaussians {
-        for v in field(g).values() {
+    let mut bytes = Vec::new();
+    for row in rows {
+        for v in row.values() {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
     }
-    (P::NAME, width, bytes)
+    NamedTensor {
+        name: format!("{prefix}{}", P::NAME),
+        dtype: Dtype::F32,
+        width,
+        bytes,
+    }
 }
 
-/// Reads tensor `P::NAME` as `rows × fields` f32 values; `rows` must match when given.
-fn read_column<P: Param>(
+/// Reads tensor `prefix` + `P::NAME` as `rows × fields` f32 values; `rows` must match when
+/// given.
+pub(crate) fn read_column<P: Param>(
     path: &Path,
     tensors: &safetensors::SafeTensors<'_>,
+    prefix: &str,
     rows: Option<usize>,
 ) -> Result<Vec<P>, ModelError> {
+    let name = format!("{prefix}{}", P::NAME);
     let tensor_error = |message: String| ModelError::Tensor {
         path: path.to_path_buf(),
-        tensor: P::NAME.to_string(),
+        tensor: name.clone(),
         message,
     };
     let view = tensors
-        .tensor(P::NAME)
+        .tensor(&name)
         .map_err(|_| tensor_error("missing".into()))?;
     let width = P::default().values().len();
     if view.dtype() != Dtype::F32 {
@@ -263,6 +345,11 @@ mod tests {
         Model {
             gaussians,
             sh_degree: 2,
+            frame_count: Some(30),
+            config: Some(ModelConfig {
+                scale_motion: false,
+                ..ModelConfig::default()
+            }),
         }
     }
 
@@ -275,6 +362,8 @@ mod tests {
         model.save(&path).unwrap();
         let back = Model::load(&path).unwrap();
         assert_eq!(back.sh_degree, 2);
+        assert_eq!(back.frame_count, Some(30));
+        assert_eq!(back.config, model.config);
         assert_eq!(back.gaussians.len(), 5);
         for (a, b) in model.gaussians.iter().zip(&back.gaussians) {
             assert_eq!(a.position, b.position);

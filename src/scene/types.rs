@@ -346,6 +346,9 @@ pub struct TrainConfig {
     pub backend: BackendKind,
     /// Print an evaluation line every this many iterations (0 = only at the end).
     pub eval_interval: u32,
+    /// Write a checkpoint (`<output>/checkpoint/`) every this many iterations, and always at
+    /// the end (0 = only at the end).
+    pub checkpoint_interval: u32,
 }
 
 impl Default for TrainConfig {
@@ -360,6 +363,7 @@ impl Default for TrainConfig {
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
             eval_interval: 0,
+            checkpoint_interval: 5000,
         }
     }
 }

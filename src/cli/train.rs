@@ -1,0 +1,377 @@
+//! `tadgs train`: train on a scene (or continue a checkpoint), save the model, evaluate it and
+//! write the run report.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use tadgs::data::Dataset;
+use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
+use tadgs::report::{DensifyRecord, HeldoutRecord, Report, StepRecord, TrainingLog};
+use tadgs::scene::{SceneConfig, apply_overrides, set_override};
+use tadgs::train::Trainer;
+
+use super::eval::{EvalArgs, RunSummary, evaluate, write_metrics};
+use super::{Ui, create_dir, load_dataset, load_with_overrides, scene_text, write_atomic};
+
+/// Held-out views shown in the run report.
+const REPORT_VIEWS: usize = 4;
+
+/// Set by Ctrl-C: the training loop writes a checkpoint and stops.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// The first Ctrl-C stops training after the current iteration with a checkpoint; a second
+/// one stops at once.
+fn catch_ctrl_c() {
+    let result = ctrlc::set_handler(|| {
+        if INTERRUPTED.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    });
+    if let Err(e) = result {
+        tracing::warn!("Ctrl-C will stop training without a checkpoint: {e}");
+    }
+}
+
+/// `tadgs train`.
+#[derive(clap::Args, Debug)]
+pub struct TrainCommand {
+    /// Scene file (RON), e.g. scenes/demo.ron or scenes/panoptic.ron. Not given with --resume
+    /// (the checkpoint holds the scene).
+    #[arg(required_unless_present = "resume")]
+    pub scene: Option<PathBuf>,
+    /// Override the number of iterations (train.iterations).
+    #[arg(long, value_name = "N")]
+    pub iterations: Option<u32>,
+    /// Override any scene setting, e.g. --set densify.vad=false --set model.tow.rho=0.7.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// Output folder (default: the scene's `output`; with --resume, the resumed run's folder).
+    #[arg(long, short, value_name = "DIR")]
+    pub output: Option<PathBuf>,
+    /// Continue a run from its checkpoint (written every --checkpoint-every iterations, at
+    /// --until and on Ctrl-C): DIR is the run folder or its checkpoint/ folder.
+    /// The run goes on exactly as if it had not stopped (same final parameters); --set and
+    /// --iterations still apply but then the result differs from an uninterrupted run.
+    #[arg(long, value_name = "DIR", conflicts_with = "scene")]
+    pub resume: Option<PathBuf>,
+    /// Write a checkpoint (<output>/checkpoint/) every N iterations, and at the end; 0 = only
+    /// at the end. Overrides train.checkpoint_interval.
+    #[arg(long, value_name = "N")]
+    pub checkpoint_every: Option<u32>,
+    /// Stop after iteration N with a checkpoint, without evaluating (the schedule still spans
+    /// train.iterations); continue later with --resume.
+    #[arg(long, value_name = "N")]
+    pub until: Option<u32>,
+    /// Measure the held-out PSNR every N iterations (for the progress log and the report's
+    /// PSNR plot; 0 = only at the end). Overrides train.eval_interval.
+    #[arg(long, value_name = "N")]
+    pub eval_every: Option<u32>,
+    /// Do not write the run report (<output>/report/index.html and its plots).
+    #[arg(long)]
+    pub no_report: bool,
+    /// Splatting backend (overrides train.backend): cpu, or gpu through wgpu (Vulkan, Metal,
+    /// DX12 or GL; no CUDA needed).
+    #[arg(long, value_parser = ["cpu", "gpu"])]
+    pub backend: Option<String>,
+    #[command(flatten)]
+    pub eval: EvalArgs,
+}
+
+pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
+    let (mut config, checkpoint, output) = match &args.resume {
+        None => {
+            let scene = args
+                .scene
+                .as_ref()
+                .expect("clap requires a scene without --resume");
+            let config = load_with_overrides(scene, &args.overrides)?;
+            let output = args
+                .output
+                .clone()
+                .unwrap_or_else(|| PathBuf::from(&config.output));
+            (config, None, output)
+        }
+        Some(dir) => {
+            let (folder, run) = if dir.join(STATE_FILE).is_file() {
+                (
+                    dir.clone(),
+                    dir.parent().unwrap_or(Path::new(".")).to_path_buf(),
+                )
+            } else {
+                (dir.join("checkpoint"), dir.clone())
+            };
+            let checkpoint = Checkpoint::load(&folder)?;
+            let mut config = checkpoint.state.scene.clone();
+            apply_overrides(&mut config, &args.overrides)?;
+            let output = args.output.clone().unwrap_or(run);
+            (config, Some(checkpoint), output)
+        }
+    };
+    if let Some(n) = args.iterations {
+        set_override(&mut config, "train.iterations", &n.to_string())?;
+    }
+    if let Some(n) = args.checkpoint_every {
+        config.train.checkpoint_interval = n;
+    }
+    if let Some(n) = args.eval_every {
+        config.train.eval_interval = n;
+    }
+    if let Some(backend) = &args.backend {
+        let kind = if backend == "gpu" { "Gpu" } else { "Cpu" };
+        set_override(&mut config, "train.backend", kind)?;
+    }
+
+    catch_ctrl_c();
+    let dataset = Arc::new(load_dataset(&config)?);
+    create_dir(&output)?;
+    write_atomic(&output.join("scene.ron"), scene_text(&config)?.as_bytes())?;
+    let (mut trainer, log) = match checkpoint {
+        None => {
+            let start = Instant::now();
+            let mut trainer = Trainer::try_new(&config, dataset.clone())?;
+            tracing::info!(
+                "{} initial Gaussians in {:.1} s",
+                trainer.gaussian_count(),
+                start.elapsed().as_secs_f32()
+            );
+            (trainer, TrainingLog::default())
+        }
+        Some(mut checkpoint) => {
+            if !same_schedule(&checkpoint.state.scene, &config) {
+                tracing::warn!(
+                    "the settings differ from the checkpoint's: the result will differ from an \
+                     uninterrupted run"
+                );
+            }
+            checkpoint.state.scene = config.clone();
+            let trainer = Trainer::from_checkpoint(&checkpoint, dataset.clone())?;
+            tracing::info!(
+                "resuming at iteration {} of {} with {} Gaussians",
+                checkpoint.state.iteration,
+                config.train.iterations,
+                checkpoint.gaussians.len()
+            );
+            (trainer, checkpoint.log)
+        }
+    };
+    let mut run = Run {
+        config: &config,
+        output: &output,
+        trainer: &mut trainer,
+        log,
+        ui,
+    };
+    if !run.train_until(args.until)? {
+        return Ok(());
+    }
+    run.finish(&dataset, &args)
+}
+
+/// Whether two scenes train the same way (everything but where the output goes).
+fn same_schedule(a: &SceneConfig, b: &SceneConfig) -> bool {
+    let mut b = b.clone();
+    b.output.clone_from(&a.output);
+    b.train.checkpoint_interval = a.train.checkpoint_interval;
+    b.train.eval_interval = a.train.eval_interval;
+    *a == b
+}
+
+/// A run in progress.
+struct Run<'a> {
+    config: &'a SceneConfig,
+    output: &'a Path,
+    trainer: &'a mut Trainer,
+    log: TrainingLog,
+    ui: Ui,
+}
+
+impl Run<'_> {
+    /// Trains up to iteration `until` (default: the end), writing checkpoints on the way and
+    /// at the stop. Returns whether the run reached its last iteration.
+    fn train_until(&mut self, until: Option<u32>) -> Result<bool> {
+        let iterations = self.config.train.iterations;
+        let start = self.trainer.state().iteration;
+        let until = until.unwrap_or(iterations).min(iterations);
+        if until <= start {
+            bail!(
+                "the run is already at iteration {start}, and --until / train.iterations ask to \
+                 stop at {until}"
+            );
+        }
+        let bar = self.ui.progress_bar(iterations as u64, "train");
+        bar.set_position(start as u64);
+        bar.reset_eta();
+        // Where no bar can be drawn (output to a file or pipe), log a line every 5 % instead.
+        let log_every = if bar.is_hidden() && !self.ui.quiet {
+            (iterations / 20).max(1)
+        } else {
+            0
+        };
+        let mut smoothed_psnr = f32::NAN;
+        let session_start = Instant::now();
+        for i in start + 1..=until {
+            let step_start = Instant::now();
+            self.trainer.step();
+            self.log.train_seconds += step_start.elapsed().as_secs_f64();
+            let state = self.trainer.state();
+            let gaussians = self.trainer.gaussian_count() as u32;
+            let psnr = self.trainer.last_view_psnr();
+            self.log.steps.push(StepRecord {
+                iteration: i,
+                loss: state.loss.total,
+                psnr,
+                gaussians,
+            });
+            let d = state.last_densify;
+            if d.iteration == i {
+                self.log.densify.push(DensifyRecord {
+                    iteration: i,
+                    cloned: d.cloned as u32,
+                    split: d.split as u32,
+                    pruned: d.pruned as u32,
+                    gaussians,
+                });
+                tracing::debug!(
+                    "iteration {i}: densified: {} cloned, {} split, {} pruned, {gaussians} Gaussians",
+                    d.cloned,
+                    d.split,
+                    d.pruned
+                );
+            }
+            if INTERRUPTED.load(Ordering::SeqCst) {
+                bar.abandon();
+                let dir = self.save_checkpoint()?;
+                bail!(
+                    "interrupted after iteration {i}: checkpoint written to {}; continue with \
+                     `tadgs train --resume {}`",
+                    dir.display(),
+                    self.output.display()
+                );
+            }
+            if let Some(fault) = self.trainer.fault() {
+                bar.abandon();
+                bail!(
+                    "{fault}: training stopped before the value reached any parameter; the last \
+                     checkpoint in {} is kept",
+                    self.output.join("checkpoint").display()
+                );
+            }
+            if psnr.is_finite() {
+                // Exponential moving average: one view's PSNR is noisy.
+                smoothed_psnr = if smoothed_psnr.is_finite() {
+                    0.95 * smoothed_psnr + 0.05 * psnr
+                } else {
+                    psnr
+                };
+            }
+            bar.set_position(i as u64);
+            bar.set_message(format!(
+                "loss {:.4} · PSNR {smoothed_psnr:.2} dB · {gaussians} Gaussians",
+                state.loss.total
+            ));
+            if log_every > 0 && (i % log_every == 0 || i == until) {
+                let seconds = session_start.elapsed().as_secs_f32();
+                tracing::info!(
+                    "iteration {i}/{iterations}: loss {:.4}, PSNR {smoothed_psnr:.2} dB, {gaussians} Gaussians, {:.2} it/s, {:.0} s",
+                    state.loss.total,
+                    (i - start) as f32 / seconds,
+                    seconds
+                );
+            }
+            let every = self.config.train.eval_interval;
+            if every > 0 && i % every == 0 && i < iterations {
+                if let Some(psnr) = self.trainer.heldout_psnr() {
+                    self.log.heldout.push(HeldoutRecord { iteration: i, psnr });
+                    let line = format!("iteration {i}: held-out PSNR {psnr:.2} dB");
+                    // A hidden bar prints nothing: log the line instead.
+                    if bar.is_hidden() {
+                        tracing::info!("{line}");
+                    } else {
+                        bar.println(line);
+                    }
+                }
+            }
+            let every = self.config.train.checkpoint_interval;
+            if every > 0 && i % every == 0 && i < until {
+                self.save_checkpoint()?;
+            }
+        }
+        bar.finish_and_clear();
+        let path = self.save_checkpoint()?;
+        if until < iterations {
+            println!(
+                "stopped after iteration {until} of {iterations}; checkpoint in {}\ncontinue with: tadgs train --resume {}",
+                path.display(),
+                self.output.display()
+            );
+            return Ok(false);
+        }
+        Ok(true)
+    }
+
+    fn save_checkpoint(&mut self) -> Result<PathBuf> {
+        let start = Instant::now();
+        let dir = self.output.join("checkpoint");
+        let checkpoint = self.trainer.checkpoint(self.config, &self.log);
+        checkpoint.save(&dir)?;
+        tracing::debug!(
+            "checkpoint at iteration {} written to {} in {:.2} s",
+            checkpoint.state.iteration,
+            dir.display(),
+            start.elapsed().as_secs_f32()
+        );
+        Ok(dir)
+    }
+
+    /// Saves the model, evaluates it, writes the metrics and the report, prints the summary.
+    fn finish(mut self, dataset: &Dataset, args: &TrainCommand) -> Result<()> {
+        let model = self.trainer.model();
+        model.save(&self.output.join("model.safetensors"))?;
+        let keep = if args.no_report { 0 } else { REPORT_VIEWS };
+        let (evaluation, views) = evaluate(
+            self.trainer,
+            dataset,
+            self.output,
+            &args.eval,
+            self.ui,
+            keep,
+        )?;
+        let summary = RunSummary::new(
+            self.config,
+            &evaluation,
+            model.gaussians.len(),
+            Some(self.log.train_seconds as f32),
+        );
+        write_metrics(self.output, &summary, &evaluation.scores)?;
+        summary.print(self.output);
+        if args.no_report {
+            return Ok(());
+        }
+        if let Some(psnr) = summary.psnr() {
+            self.log.heldout.push(HeldoutRecord {
+                iteration: self.config.train.iterations,
+                psnr,
+            });
+        }
+        let mut figures = summary.rows();
+        figures.push((
+            "densification steps".into(),
+            self.log.densify.len().to_string(),
+        ));
+        let report = Report {
+            title: format!("tadgs run: {}", self.config.name),
+            figures,
+            log: &self.log,
+            lifespans: self.trainer.lifespans(),
+            views,
+        };
+        let page = report
+            .write(&self.output.join("report"))
+            .context("writing the run report")?;
+        println!("{:<16} {}", "report", page.display());
+        Ok(())
+    }
+}

@@ -1,0 +1,505 @@
+//! Training checkpoints: everything needed to continue a run bit for bit.
+//!
+//! A checkpoint is a folder of three files, each written atomically:
+//! - `tensors.safetensors`: per Gaussian, every parameter component (as in the model file),
+//!   both Adam moments of every group (`adam.m.<group>`, `adam.v.<group>`) and the
+//!   densification statistics (`grad_accum`: Σw·g, Σw, Σψ̄, max radius; `grad_accum_count`).
+//!   Adam's step count is the iteration (bias correction uses the global step).
+//! - `log.json`: the run's history for the report ([`TrainingLog`]).
+//! - `state.ron`, written last: the scene settings, the counters (iteration, SH degree, last
+//!   densification), the view order of the current epoch and the RNG state.
+//!
+//! Both data files record the iteration; a checkpoint whose files disagree (one replaced, a
+//! crash between two writes) is refused with an error naming the file.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use bevy_ecs::prelude::*;
+use rand_chacha::ChaCha8Rng;
+use safetensors::tensor::Dtype;
+use serde::{Deserialize, Serialize};
+
+use super::model::{
+    ModelError, NamedTensor, checked_metadata, column, param_tensors, read_column,
+    read_param_tensors, write_tensors,
+};
+use crate::components::{
+    Adam, AdamMoments, Color, Fourier, GaussianParams, GradAccum, Opacity, Param, ParamRefs,
+    Position, Rotation, Scale, Temporal,
+};
+use crate::report::TrainingLog;
+use crate::resources::{DensifyReport, Rng, TrainState, ViewOrder};
+use crate::scene::SceneConfig;
+
+/// The tensors of a checkpoint.
+pub const TENSORS_FILE: &str = "tensors.safetensors";
+/// The settings and counters of a checkpoint.
+pub const STATE_FILE: &str = "state.ron";
+/// The history of the run up to the checkpoint.
+pub const LOG_FILE: &str = "log.json";
+/// Value of the `format` field and metadata key.
+pub const CHECKPOINT_FORMAT: &str = "tadgs-checkpoint";
+/// Layout version; bumped when a file's content changes.
+pub const CHECKPOINT_VERSION: u32 = 1;
+
+/// A checkpoint could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error("cannot read checkpoint file {}: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot write checkpoint file {}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("checkpoint file {}: {message}", path.display())]
+    Invalid { path: PathBuf, message: String },
+    #[error("checkpoint tensors: {0}")]
+    Tensors(#[from] ModelError),
+}
+
+/// One Gaussian's trainable state.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GaussianState {
+    pub params: GaussianParams,
+    pub adam: AdamMoments,
+    pub accum: GradAccum,
+}
+
+/// The ChaCha8 generator's position: seed, stream and word position (128-bit, as text).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RngState {
+    pub seed: [u8; 32],
+    pub stream: u64,
+    pub word_pos: String,
+}
+
+impl RngState {
+    fn of(rng: &ChaCha8Rng) -> Self {
+        Self {
+            seed: rng.get_seed(),
+            stream: rng.get_stream(),
+            word_pos: rng.get_word_pos().to_string(),
+        }
+    }
+
+    fn restore(&self) -> Option<ChaCha8Rng> {
+        use rand::SeedableRng;
+        let mut rng = ChaCha8Rng::from_seed(self.seed);
+        rng.set_stream(self.stream);
+        rng.set_word_pos(self.word_pos.parse().ok()?);
+        Some(rng)
+    }
+}
+
+/// Counters of the run at the checkpoint (the `state.ron` file, with the scene).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointState {
+    pub format: String,
+    pub version: u32,
+    /// Iterations completed.
+    pub iteration: u32,
+    pub sh_degree: u32,
+    pub gaussians: usize,
+    /// The last densification step: iteration, cloned, split, pruned.
+    pub last_densify: (u32, usize, usize, usize),
+    /// Shuffled training-view indices of the current epoch and the next position in it.
+    pub view_order: Vec<usize>,
+    pub view_next: usize,
+    pub rng: RngState,
+    pub scene: SceneConfig,
+}
+
+/// A whole checkpoint in memory.
+#[derive(Clone, Debug)]
+pub struct Checkpoint {
+    pub state: CheckpointState,
+    pub gaussians: Vec<GaussianState>,
+    pub log: TrainingLog,
+}
+
+impl Checkpoint {
+    /// Captures the run in `world` (trained with `scene`) and its `log`.
+    pub fn from_world(world: &mut World, scene: &SceneConfig, log: &TrainingLog) -> Self {
+        let gaussians: Vec<GaussianState> = world
+            .query::<(ParamRefs, AdamRefs, &GradAccum)>()
+            .iter(world)
+            .map(|(params, adam, accum)| GaussianState {
+                params: GaussianParams::from_refs(params),
+                adam: (
+                    *adam.0, *adam.1, *adam.2, *adam.3, *adam.4, *adam.5, *adam.6,
+                ),
+                accum: *accum,
+            })
+            .collect();
+        let train = *world.resource::<TrainState>();
+        let order = world.resource::<ViewOrder>();
+        let d = train.last_densify;
+        let state = CheckpointState {
+            format: CHECKPOINT_FORMAT.into(),
+            version: CHECKPOINT_VERSION,
+            iteration: train.iteration,
+            sh_degree: train.sh_degree,
+            gaussians: gaussians.len(),
+            last_densify: (d.iteration, d.cloned, d.split, d.pruned),
+            view_order: order.order.clone(),
+            view_next: order.next,
+            rng: RngState::of(&world.resource::<Rng>().0),
+            scene: scene.clone(),
+        };
+        let mut log = log.clone();
+        log.truncate(train.iteration);
+        Self {
+            state,
+            gaussians,
+            log,
+        }
+    }
+
+    /// Puts the checkpoint into `world`, which holds the resources of its scene and dataset
+    /// (see [`crate::train::insert_resources`]) and no Gaussians: spawns the Gaussians in the
+    /// saved order with their Adam moments and statistics, and restores the counters, the
+    /// view order and the RNG.
+    pub fn restore_into(&self, world: &mut World) {
+        world.spawn_batch(self.gaussians.iter().map(|g| {
+            let mut bundle = g.params.bundle();
+            bundle.1.1 = g.adam;
+            bundle.2.0 = g.accum;
+            bundle
+        }));
+        let s = &self.state;
+        *world.resource_mut::<TrainState>() = TrainState {
+            iteration: s.iteration,
+            sh_degree: s.sh_degree,
+            loss: Default::default(),
+            last_densify: DensifyReport {
+                iteration: s.last_densify.0,
+                cloned: s.last_densify.1,
+                split: s.last_densify.2,
+                pruned: s.last_densify.3,
+            },
+        };
+        *world.resource_mut::<ViewOrder>() = ViewOrder {
+            order: s.view_order.clone(),
+            next: s.view_next,
+        };
+        // Checked when loading.
+        let rng = s.rng.restore().expect("word position checked by load");
+        world.resource_mut::<Rng>().0 = rng;
+    }
+
+    /// Writes the checkpoint as folder `dir`, replacing the one there without a moment where
+    /// neither is complete: the files go into `<dir>.partial`, then the old folder is renamed
+    /// to `<dir>.old`, the new one into place, and the old one removed. A crash at any point
+    /// leaves `dir` complete, or (between the two renames) `<dir>.old` complete, which
+    /// [`Checkpoint::load`] falls back to.
+    pub fn save(&self, dir: &Path) -> Result<(), CheckpointError> {
+        let write_err = |path: &Path| {
+            let path = path.to_path_buf();
+            move |source| CheckpointError::Write { path, source }
+        };
+        let partial = sibling(dir, "partial");
+        let old = sibling(dir, "old");
+        if partial.exists() {
+            std::fs::remove_dir_all(&partial).map_err(write_err(&partial))?;
+        }
+        std::fs::create_dir_all(&partial).map_err(write_err(&partial))?;
+        self.write_files(&partial)?;
+        if dir.exists() {
+            if old.exists() {
+                std::fs::remove_dir_all(&old).map_err(write_err(&old))?;
+            }
+            std::fs::rename(dir, &old).map_err(write_err(dir))?;
+        }
+        std::fs::rename(&partial, dir).map_err(write_err(dir))?;
+        if old.exists() {
+            std::fs::remove_dir_all(&old).map_err(write_err(&old))?;
+        }
+        Ok(())
+    }
+
+    /// Writes the three files into the existing folder `dir`: tensors, log, then state.
+    fn write_files(&self, dir: &Path) -> Result<(), CheckpointError> {
+        let params: Vec<GaussianParams> = self.gaussians.iter().map(|g| g.params).collect();
+        let mut tensors = param_tensors(&params, "");
+        tensors.extend(adam_tensors::<Position>(&self.gaussians, |a| &a.0));
+        tensors.extend(adam_tensors::<Fourier>(&self.gaussians, |a| &a.1));
+        tensors.extend(adam_tensors::<Temporal>(&self.gaussians, |a| &a.2));
+        tensors.extend(adam_tensors::<Opacity>(&self.gaussians, |a| &a.3));
+        tensors.extend(adam_tensors::<Rotation>(&self.gaussians, |a| &a.4));
+        tensors.extend(adam_tensors::<Scale>(&self.gaussians, |a| &a.5));
+        tensors.extend(adam_tensors::<Color>(&self.gaussians, |a| &a.6));
+        tensors.extend(accum_tensors(&self.gaussians));
+        let metadata = HashMap::from([
+            ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
+            ("version".to_string(), CHECKPOINT_VERSION.to_string()),
+            ("iteration".to_string(), self.state.iteration.to_string()),
+        ]);
+        write_tensors(&dir.join(TENSORS_FILE), &tensors, metadata)?;
+
+        let write = |name: &str, text: Result<String, String>| {
+            let path = dir.join(name);
+            let text = text.map_err(|message| CheckpointError::Invalid {
+                path: path.clone(),
+                message,
+            })?;
+            super::write_atomic(&path, text.as_bytes())
+                .map_err(|source| CheckpointError::Write { path, source })
+        };
+        let log = LogFile {
+            iteration: self.state.iteration,
+            log: self.log.clone(),
+        };
+        write(
+            LOG_FILE,
+            serde_json::to_string(&log).map_err(|e| e.to_string()),
+        )?;
+        let pretty = ron::ser::PrettyConfig::default().compact_arrays(true);
+        write(
+            STATE_FILE,
+            ron::ser::to_string_pretty(&self.state, pretty).map_err(|e| e.to_string()),
+        )
+    }
+
+    /// Reads the checkpoint in folder `dir`, checking that its three files belong together.
+    /// When `dir` is missing and `<dir>.old` exists (a crash while [`Checkpoint::save`]
+    /// swapped folders), reads that one.
+    pub fn load(dir: &Path) -> Result<Self, CheckpointError> {
+        let old = sibling(dir, "old");
+        if !dir.exists() && old.is_dir() {
+            tracing::warn!(
+                "{} is missing; using {}, left by an interrupted checkpoint write",
+                dir.display(),
+                old.display()
+            );
+            return Self::load_folder(&old);
+        }
+        Self::load_folder(dir)
+    }
+
+    fn load_folder(dir: &Path) -> Result<Self, CheckpointError> {
+        let read = |name: &str| {
+            let path = dir.join(name);
+            std::fs::read(&path)
+                .map(|bytes| (path.clone(), bytes))
+                .map_err(|source| CheckpointError::Read { path, source })
+        };
+        let invalid = |path: &Path, message: String| CheckpointError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        };
+
+        let (state_path, bytes) = read(STATE_FILE)?;
+        let text =
+            String::from_utf8(bytes).map_err(|_| invalid(&state_path, "not UTF-8 text".into()))?;
+        let state: CheckpointState =
+            ron::from_str(&text).map_err(|e| invalid(&state_path, e.to_string()))?;
+        if state.format != CHECKPOINT_FORMAT || state.version != CHECKPOINT_VERSION {
+            return Err(invalid(
+                &state_path,
+                format!(
+                    "format {:?} version {}, this tadgs reads {CHECKPOINT_FORMAT:?} version \
+                     {CHECKPOINT_VERSION}",
+                    state.format, state.version
+                ),
+            ));
+        }
+        if state.rng.restore().is_none() {
+            return Err(invalid(&state_path, "rng.word_pos is not a number".into()));
+        }
+        if state.view_next > state.view_order.len() {
+            return Err(invalid(
+                &state_path,
+                "view_next is past the end of view_order".into(),
+            ));
+        }
+
+        let (log_path, bytes) = read(LOG_FILE)?;
+        let log: LogFile =
+            serde_json::from_slice(&bytes).map_err(|e| invalid(&log_path, e.to_string()))?;
+        if log.iteration != state.iteration {
+            return Err(invalid(
+                &log_path,
+                format!(
+                    "written at iteration {}, but {STATE_FILE} is from iteration {}",
+                    log.iteration, state.iteration
+                ),
+            ));
+        }
+
+        let (tensor_path, bytes) = read(TENSORS_FILE)?;
+        let gaussians = read_gaussian_states(&tensor_path, &bytes, &state)?;
+        Ok(Self {
+            state,
+            gaussians,
+            log: log.log,
+        })
+    }
+}
+
+/// `log.json`: the log and the iteration it was written at.
+#[derive(Serialize, Deserialize)]
+struct LogFile {
+    iteration: u32,
+    log: TrainingLog,
+}
+
+/// Read-only query of every Adam component of a Gaussian.
+type AdamRefs<'a> = (
+    &'a Adam<Position>,
+    &'a Adam<Fourier>,
+    &'a Adam<Temporal>,
+    &'a Adam<Opacity>,
+    &'a Adam<Rotation>,
+    &'a Adam<Scale>,
+    &'a Adam<Color>,
+);
+
+/// The first and second moments of group `P` as tensors `adam.m.<group>`, `adam.v.<group>`.
+fn adam_tensors<P: Param>(
+    gaussians: &[GaussianState],
+    field: impl Fn(&AdamMoments) -> &Adam<P>,
+) -> [NamedTensor; 2] {
+    [
+        column("adam.m.", gaussians.iter().map(|g| &field(&g.adam).m)),
+        column("adam.v.", gaussians.iter().map(|g| &field(&g.adam).v)),
+    ]
+}
+
+/// Reads the moments written by [`adam_tensors`] for `rows` Gaussians.
+fn read_adam<P: Param>(
+    path: &Path,
+    tensors: &safetensors::SafeTensors<'_>,
+    rows: usize,
+) -> Result<Vec<Adam<P>>, ModelError> {
+    let m = read_column::<P>(path, tensors, "adam.m.", Some(rows))?;
+    let v = read_column::<P>(path, tensors, "adam.v.", Some(rows))?;
+    Ok(m.into_iter().zip(v).map(|(m, v)| Adam { m, v }).collect())
+}
+
+/// The densification statistics: `grad_accum` (f32: Σw·g, Σw, Σψ̄, max radius) and
+/// `grad_accum_count` (u32).
+fn accum_tensors(gaussians: &[GaussianState]) -> [NamedTensor; 2] {
+    let mut floats = Vec::with_capacity(gaussians.len() * 16);
+    let mut counts = Vec::with_capacity(gaussians.len() * 4);
+    for g in gaussians {
+        let a = &g.accum;
+        for v in [a.weighted_grad, a.weight, a.lifespan_sum, a.max_radius] {
+            floats.extend_from_slice(&v.to_le_bytes());
+        }
+        counts.extend_from_slice(&a.count.to_le_bytes());
+    }
+    [
+        NamedTensor {
+            name: "grad_accum".into(),
+            dtype: Dtype::F32,
+            width: 4,
+            bytes: floats,
+        },
+        NamedTensor {
+            name: "grad_accum_count".into(),
+            dtype: Dtype::U32,
+            width: 1,
+            bytes: counts,
+        },
+    ]
+}
+
+/// Reads `tensors.safetensors` and checks it against `state` (iteration, Gaussian count).
+fn read_gaussian_states(
+    path: &Path,
+    bytes: &[u8],
+    state: &CheckpointState,
+) -> Result<Vec<GaussianState>, CheckpointError> {
+    let invalid = |message: String| CheckpointError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let metadata = checked_metadata(bytes, CHECKPOINT_FORMAT)
+        .map_err(|e| invalid(format!("not a valid checkpoint tensor file: {e}")))?;
+    let iteration = metadata
+        .get("iteration")
+        .and_then(|s| s.parse::<u32>().ok());
+    if iteration != Some(state.iteration) {
+        return Err(invalid(format!(
+            "written at iteration {iteration:?}, but {STATE_FILE} is from iteration {}",
+            state.iteration
+        )));
+    }
+    let tensors = safetensors::SafeTensors::deserialize(bytes)
+        .map_err(|e| invalid(format!("not a valid safetensors file: {e}")))?;
+    let n = state.gaussians;
+    let params = read_param_tensors(path, &tensors, "", Some(n)).map_err(|e| match e {
+        ModelError::Tensor {
+            message, tensor, ..
+        } => invalid(format!(
+            "tensor `{tensor}`: {message} ({STATE_FILE} records {n} Gaussians)"
+        )),
+        other => other.into(),
+    })?;
+    let position = read_adam::<Position>(path, &tensors, n)?;
+    let fourier = read_adam::<Fourier>(path, &tensors, n)?;
+    let temporal = read_adam::<Temporal>(path, &tensors, n)?;
+    let opacity = read_adam::<Opacity>(path, &tensors, n)?;
+    let rotation = read_adam::<Rotation>(path, &tensors, n)?;
+    let scale = read_adam::<Scale>(path, &tensors, n)?;
+    let color = read_adam::<Color>(path, &tensors, n)?;
+    let floats = raw_tensor(&tensors, "grad_accum", Dtype::F32, [n, 4]).map_err(&invalid)?;
+    let counts = raw_tensor(&tensors, "grad_accum_count", Dtype::U32, [n, 1]).map_err(&invalid)?;
+    let word = |bytes: &[u8], i: usize| -> [u8; 4] {
+        bytes[4 * i..4 * i + 4].try_into().expect("4 bytes")
+    };
+    Ok((0..n)
+        .map(|i| GaussianState {
+            params: params[i],
+            adam: (
+                position[i],
+                fourier[i],
+                temporal[i],
+                opacity[i],
+                rotation[i],
+                scale[i],
+                color[i],
+            ),
+            accum: GradAccum {
+                weighted_grad: f32::from_le_bytes(word(floats, 4 * i)),
+                weight: f32::from_le_bytes(word(floats, 4 * i + 1)),
+                lifespan_sum: f32::from_le_bytes(word(floats, 4 * i + 2)),
+                max_radius: f32::from_le_bytes(word(floats, 4 * i + 3)),
+                count: u32::from_le_bytes(word(counts, i)),
+            },
+        })
+        .collect())
+}
+
+/// The bytes of tensor `name`, checked for type and shape.
+fn raw_tensor<'data>(
+    tensors: &safetensors::SafeTensors<'data>,
+    name: &str,
+    dtype: Dtype,
+    shape: [usize; 2],
+) -> Result<&'data [u8], String> {
+    let view = tensors
+        .tensor(name)
+        .map_err(|_| format!("tensor `{name}` is missing"))?;
+    if view.dtype() != dtype || view.shape() != shape {
+        return Err(format!(
+            "tensor `{name}` is {:?} {:?}, expected {dtype:?} {shape:?}",
+            view.dtype(),
+            view.shape()
+        ));
+    }
+    Ok(view.data())
+}
+
+/// `<dir>.<suffix>` beside `dir` (same parent, so a rename between them is atomic).
+fn sibling(dir: &Path, suffix: &str) -> PathBuf {
+    let mut name = dir.file_name().unwrap_or_default().to_os_string();
+    name.push(".");
+    name.push(suffix);
+    dir.with_file_name(name)
+}

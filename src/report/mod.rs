@@ -1,0 +1,216 @@
+//! The run report: an HTML page with PNG plots written at the end of training.
+//!
+//! `index.html` shows the run's figures, then `loss.png` (training loss over iterations),
+//! `psnr.png` (training-view PSNR, smoothed, and held-out PSNR), `gaussians.png` (Gaussian
+//! count with the densification steps marked), `lifespans.png` (histogram of the normalised
+//! temporal lifespans ψ̄) and, for a few held-out views, `view_N.png`: render | ground truth |
+//! error heat-map. Plots are drawn with plotters into RGB buffers; their text uses the
+//! DejaVu Sans font embedded in the binary, so no system font is needed.
+
+mod log;
+mod plot;
+
+pub use log::{DensifyRecord, HeldoutRecord, StepRecord, TrainingLog};
+
+use std::path::{Path, PathBuf};
+
+use crate::io::image::{Image, ImageError};
+
+/// The report could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    #[error("drawing {}: {message}", path.display())]
+    Plot { path: PathBuf, message: String },
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    #[error("cannot write {}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// A held-out view shown in the report.
+pub struct ReportView {
+    /// Caption, e.g. "camera 5, frame 12: PSNR 24.1 dB".
+    pub caption: String,
+    pub render: Image,
+    pub ground_truth: Image,
+}
+
+/// What the report shows.
+pub struct Report<'a> {
+    pub title: String,
+    /// Figures of the run as (name, value) rows.
+    pub figures: Vec<(String, String)>,
+    pub log: &'a TrainingLog,
+    /// Normalised lifespan ψ̄ of every Gaussian at the end of training.
+    pub lifespans: Vec<f32>,
+    pub views: Vec<ReportView>,
+}
+
+/// Mean absolute error (over channels) that maps to the top of the heat-map colour scale.
+pub const HEATMAP_MAX_ERROR: f32 = 0.25;
+
+impl Report<'_> {
+    /// Writes `index.html` and its PNGs into `dir` (created if needed); returns the page's path.
+    pub fn write(&self, dir: &Path) -> Result<PathBuf, ReportError> {
+        std::fs::create_dir_all(dir).map_err(|source| ReportError::Write {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let mut sections = Vec::new();
+        let log = self.log;
+        if !log.steps.is_empty() {
+            plot::loss(&dir.join("loss.png"), log)?;
+            sections.push(figure(
+                "loss.png",
+                "Training loss (0.8·L1 + 0.2·D-SSIM) per iteration, with its moving average.",
+            ));
+            plot::psnr(&dir.join("psnr.png"), log)?;
+            sections.push(figure(
+                "psnr.png",
+                "PSNR of each iteration's render against its training view (moving average) \
+                 and of the held-out views where they were evaluated.",
+            ));
+            plot::gaussians(&dir.join("gaussians.png"), log)?;
+            sections.push(figure(
+                "gaussians.png",
+                "Number of Gaussians; orange dashed lines mark densification steps.",
+            ));
+        }
+        if !self.lifespans.is_empty() {
+            plot::lifespans(&dir.join("lifespans.png"), &self.lifespans)?;
+            sections.push(figure(
+                "lifespans.png",
+                "Normalised temporal lifespan ψ̄ of the final Gaussians: the fraction of the \
+                 sequence in which σ(t)/σˢ > 0.2.",
+            ));
+        }
+        for (index, view) in self.views.iter().enumerate() {
+            let name = format!("view_{index}.png");
+            view_strip(view).save_png(&dir.join(&name))?;
+            sections.push(figure_wide(
+                &name,
+                &format!(
+                    "{}. Render | ground truth | error (mean absolute error per pixel, black = 0, \
+                     yellow ≥ {HEATMAP_MAX_ERROR}).",
+                    view.caption
+                ),
+            ));
+        }
+        let rows: String = self
+            .figures
+            .iter()
+            .map(|(k, v)| format!("<tr><th>{}</th><td>{}</td></tr>\n", escape(k), escape(v)))
+            .collect();
+        let html = format!(
+            "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
+             <title>{title}</title>\n<style>\n\
+             body {{ font-family: sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }}\n\
+             table {{ border-collapse: collapse; margin-bottom: 1.5em; }}\n\
+             th, td {{ text-align: left; padding: 0.2em 1em 0.2em 0; border-bottom: 1px solid #ddd; }}\n\
+             figure {{ margin: 0 0 2em 0; }}\n img {{ max-width: 100%; }}\n\
+             img.view {{ width: 100%; image-rendering: pixelated; }}\n\
+             figcaption {{ color: #555; }}\n</style>\n</head>\n<body>\n<h1>{title}</h1>\n\
+             <table>\n{rows}</table>\n{sections}\n</body>\n</html>\n",
+            title = escape(&self.title),
+            sections = sections.join("\n"),
+        );
+        let path = dir.join("index.html");
+        crate::io::write_atomic(&path, html.as_bytes()).map_err(|source| ReportError::Write {
+            path: path.clone(),
+            source,
+        })?;
+        Ok(path)
+    }
+}
+
+fn figure(image: &str, caption: &str) -> String {
+    format!(
+        "<figure><img src=\"{image}\" alt=\"{image}\"><figcaption>{}</figcaption></figure>",
+        escape(caption)
+    )
+}
+
+/// A figure stretched to the page width (small renders are enlarged, pixels kept sharp).
+fn figure_wide(image: &str, caption: &str) -> String {
+    format!(
+        "<figure><img class=\"view\" src=\"{image}\" alt=\"{image}\"><figcaption>{}</figcaption></figure>",
+        escape(caption)
+    )
+}
+
+/// Text safe to put in HTML.
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// Render, ground truth and error heat-map side by side.
+pub fn view_strip(view: &ReportView) -> Image {
+    let error = error_heatmap(&view.render, &view.ground_truth);
+    let parts = [&view.render, &view.ground_truth, &error];
+    let width = parts.iter().map(|p| p.width).sum();
+    let height = parts.iter().map(|p| p.height).max().unwrap_or(0);
+    let mut out = Image::filled(width, height, [1.0; 3]);
+    let mut left = 0;
+    for part in parts {
+        for y in 0..part.height {
+            let row = &part.data[y * part.width..(y + 1) * part.width];
+            out.data[y * width + left..y * width + left + part.width].copy_from_slice(row);
+        }
+        left += part.width;
+    }
+    out
+}
+
+/// Per-pixel mean absolute error as a black → red → yellow heat-map, full scale at
+/// [`HEATMAP_MAX_ERROR`]. Images of different sizes give the error over their overlap.
+pub fn error_heatmap(render: &Image, ground_truth: &Image) -> Image {
+    let (width, height) = (
+        render.width.min(ground_truth.width),
+        render.height.min(ground_truth.height),
+    );
+    let mut out = Image::filled(width, height, [0.0; 3]);
+    for y in 0..height {
+        for x in 0..width {
+            let (a, b) = (render.get(x, y), ground_truth.get(x, y));
+            let error = (0..3).map(|c| (a[c] - b[c]).abs()).sum::<f32>() / 3.0;
+            out.data[y * width + x] = heat((error / HEATMAP_MAX_ERROR).clamp(0.0, 1.0));
+        }
+    }
+    out
+}
+
+/// Colour of `v` in [0, 1]: black, dark red, orange, yellow.
+fn heat(v: f32) -> [f32; 3] {
+    const STOPS: [[f32; 3]; 4] = [
+        [0.0, 0.0, 0.0],
+        [0.55, 0.05, 0.1],
+        [0.95, 0.45, 0.05],
+        [1.0, 1.0, 0.3],
+    ];
+    let t = v * (STOPS.len() - 1) as f32;
+    let i = (t.floor() as usize).min(STOPS.len() - 2);
+    let f = t - i as f32;
+    std::array::from_fn(|c| STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The heat-map is black where render and truth agree and yellow at full-scale error.
+    #[test]
+    fn heatmap_scale_ends() {
+        let a = Image::filled(2, 1, [0.5; 3]);
+        let mut b = a.clone();
+        b.data[1] = [0.5 + HEATMAP_MAX_ERROR; 3];
+        let map = error_heatmap(&a, &b);
+        assert_eq!(map.data[0], [0.0; 3]);
+        assert_eq!(map.data[1], [1.0, 1.0, 0.3]);
+    }
+}

@@ -1,0 +1,160 @@
+//! Checkpoints: a run stopped, saved to disk, loaded and continued ends exactly where the same
+//! run without a stop ends; damaged or mismatched checkpoints are refused with the file named.
+
+use std::sync::Arc;
+
+use tadgs::data::Dataset;
+use tadgs::data::synthetic::demo_scene;
+use tadgs::io::checkpoint::{Checkpoint, LOG_FILE, STATE_FILE, TENSORS_FILE};
+use tadgs::report::{StepRecord, TrainingLog};
+use tadgs::scene::{DataSource, SceneConfig};
+use tadgs::train::Trainer;
+
+/// A 6-frame, 48×36 demo scene: 36 iterations, densification every 10 from 10 and an opacity
+/// reset at 30, SH degree raised every 8 iterations.
+fn tiny_scene() -> (SceneConfig, Arc<Dataset>) {
+    let mut synthetic = demo_scene();
+    synthetic.frames = 6;
+    synthetic.width = 48;
+    synthetic.height = 36;
+    synthetic.supersample = 1;
+    let mut config = SceneConfig::new("tiny", DataSource::Synthetic(synthetic.clone()));
+    config.init.points_per_anchor = 200;
+    config.init.anchor_spacing = 3;
+    config.train.iterations = 36;
+    config.train.sh_increase_interval = 8;
+    config.densify.from_iter = 5;
+    config.densify.interval = 10;
+    config.densify.grad_threshold = 2e-5;
+    config.densify.opacity_reset_interval = 30;
+    let dataset = Arc::new(synthetic.build().expect("tiny scene builds"));
+    (config, dataset)
+}
+
+fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
+    let state = trainer.state();
+    log.steps.push(StepRecord {
+        iteration: state.iteration,
+        loss: state.loss.total,
+        psnr: trainer.last_view_psnr(),
+        gaussians: trainer.gaussian_count() as u32,
+    });
+}
+
+/// Property: training 36 iterations straight and training 17, writing a checkpoint, loading it
+/// into a new trainer and training the remaining 19 give bit-identical parameters, Adam
+/// moments, densification statistics and counters, and the same RNG position. The stop lies
+/// between two densification steps, with statistics accumulated and the epoch's view order
+/// half used, so each of them matters.
+#[test]
+fn resumed_run_matches_uninterrupted_run() {
+    let (config, dataset) = tiny_scene();
+    let total = config.train.iterations;
+    let stop = 17;
+
+    let mut straight = Trainer::new(&config, dataset.clone());
+    let mut straight_log = TrainingLog::default();
+    for _ in 0..total {
+        straight.step();
+        log_of(&mut straight, &mut straight_log);
+    }
+
+    let dir = tempfile::tempdir().unwrap();
+    let mut first = Trainer::new(&config, dataset.clone());
+    let mut log = TrainingLog::default();
+    for _ in 0..stop {
+        first.step();
+        log_of(&mut first, &mut log);
+    }
+    let saved = first.checkpoint(&config, &log);
+    assert!(
+        saved.gaussians.iter().any(|g| g.accum.count > 0),
+        "the stop should fall where statistics are being accumulated"
+    );
+    saved.save(dir.path()).unwrap();
+    drop(first);
+
+    let loaded = Checkpoint::load(dir.path()).unwrap();
+    assert_eq!(loaded.state, saved.state);
+    assert_eq!(loaded.gaussians, saved.gaussians);
+    assert_eq!(loaded.log, log);
+    let mut resumed = Trainer::from_checkpoint(&loaded, dataset.clone()).unwrap();
+    let mut log = loaded.log.clone();
+    for _ in stop..total {
+        resumed.step();
+        log_of(&mut resumed, &mut log);
+    }
+
+    let a = straight.checkpoint(&config, &straight_log);
+    let b = resumed.checkpoint(&config, &log);
+    assert_eq!(a.state.iteration, total);
+    let densified = a.state.last_densify.0;
+    assert!(
+        densified > stop,
+        "a densification step should follow the stop (last at {densified})"
+    );
+    assert_eq!(a.state, b.state, "counters, view order or RNG differ");
+    assert_eq!(a.gaussians.len(), b.gaussians.len());
+    for (i, (x, y)) in a.gaussians.iter().zip(&b.gaussians).enumerate() {
+        assert_eq!(x, y, "Gaussian {i} differs");
+    }
+    assert_eq!(straight_log, log, "the training history differs");
+}
+
+/// Trains `steps` iterations and saves a checkpoint into `dir`; returns the Gaussian count.
+fn saved_checkpoint(dir: &std::path::Path, steps: u32) -> usize {
+    let (config, dataset) = tiny_scene();
+    let mut trainer = Trainer::new(&config, dataset);
+    for _ in 0..steps {
+        trainer.step();
+    }
+    trainer
+        .checkpoint(&config, &TrainingLog::default())
+        .save(dir)
+        .unwrap();
+    trainer.gaussian_count()
+}
+
+/// Property: a truncated tensor file is an error naming that file, not a panic.
+#[test]
+fn truncated_checkpoint_names_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    saved_checkpoint(dir.path(), 3);
+    let path = dir.path().join(TENSORS_FILE);
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    let error = Checkpoint::load(dir.path()).unwrap_err().to_string();
+    assert!(error.contains(TENSORS_FILE), "{error}");
+}
+
+/// Property: files from different iterations (a state file from another checkpoint) are
+/// refused, naming the file that disagrees with state.ron.
+#[test]
+fn mismatched_checkpoint_files_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    saved_checkpoint(dir.path(), 3);
+    let other = tempfile::tempdir().unwrap();
+    let n = saved_checkpoint(other.path(), 5);
+    std::fs::copy(other.path().join(STATE_FILE), dir.path().join(STATE_FILE)).unwrap();
+    let error = Checkpoint::load(dir.path()).unwrap_err().to_string();
+    assert!(error.contains(LOG_FILE), "{error}");
+    assert!(error.contains("iteration 5"), "{error}");
+
+    // Same iteration in every file, but the tensors hold another number of Gaussians.
+    std::fs::copy(other.path().join(LOG_FILE), dir.path().join(LOG_FILE)).unwrap();
+    let text = std::fs::read_to_string(dir.path().join(STATE_FILE)).unwrap();
+    let text = text.replace(&format!("gaussians: {n}"), &format!("gaussians: {}", n + 1));
+    std::fs::write(dir.path().join(STATE_FILE), text).unwrap();
+    std::fs::copy(
+        other.path().join(TENSORS_FILE),
+        dir.path().join(TENSORS_FILE),
+    )
+    .unwrap();
+    let error = Checkpoint::load(dir.path()).unwrap_err().to_string();
+    assert!(error.contains(TENSORS_FILE), "{error}");
+
+    // A missing file is named too.
+    std::fs::remove_file(dir.path().join(TENSORS_FILE)).unwrap();
+    let error = Checkpoint::load(dir.path()).unwrap_err().to_string();
+    assert!(error.contains(TENSORS_FILE), "{error}");
+}
