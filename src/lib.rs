@@ -1,5 +1,6 @@
 //! tadgs: dynamic (4D) Gaussian splatting with temporally aware densification.
 
+pub mod bench;
 pub mod components;
 pub mod data;
 pub mod io;

@@ -113,6 +113,8 @@ enum Command {
         #[arg(long, default_value_t = DEFAULT_FLOW_THRESHOLD)]
         flow_threshold: f32,
     },
+    /// Time every stage of a training iteration on the fixed benchmark scene and print a table.
+    Bench(tadgs::bench::BenchArgs),
     /// Show a scene's resolved settings and a summary of its data.
     Info {
         /// Scene file (RON).
@@ -238,6 +240,7 @@ fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
+        Command::Bench(args) => tadgs::bench::cli(&args),
         Command::Info {
             scene,
             overrides,

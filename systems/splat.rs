@@ -23,11 +23,7 @@ pub fn splat(
         splat_slot.0 = slot as u32;
         buffers.deformed.push(*deformed);
     }
-    buffers
-        .deformed
-        .par_iter()
-        .map(|d| project_splat(d, &camera))
-        .collect_into_vec(&mut buffers.splats);
+    project_all(&buffers.deformed, &camera, &mut buffers.splats);
     let (width, height) = (camera.width as usize, camera.height as usize);
     buffers.rasterizer.forward(
         &buffers.splats,
@@ -36,6 +32,14 @@ pub fn splat(
         settings.train.background,
         &mut buffers.render,
     );
+}
+
+/// Projects every deformed Gaussian into `splats` (same order).
+pub fn project_all(deformed: &[Deformed], camera: &crate::data::Camera, splats: &mut Vec<Splat>) {
+    deformed
+        .par_iter()
+        .map(|d| project_splat(d, camera))
+        .collect_into_vec(splats);
 }
 
 /// The splat of one deformed Gaussian; invisible when culled (behind the camera, off screen or

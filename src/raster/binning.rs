@@ -30,6 +30,17 @@ impl TileBins {
         self.sorted_splats.len()
     }
 
+    /// Heap bytes held by the bins.
+    pub fn heap_bytes(&self) -> usize {
+        4 * (self.rects.capacity() * 4
+            + self.splat_offsets.capacity()
+            + self.sorted_splats.capacity()
+            + self.sorted_position.capacity()
+            + self.tile_offsets.capacity()
+            + self.tile_fill.capacity())
+            + 8 * self.sorted_keys.capacity()
+    }
+
     /// Sorted entries of tile `t`.
     pub fn tile_range(&self, t: usize) -> std::ops::Range<usize> {
         self.tile_offsets[t] as usize..self.tile_offsets[t + 1] as usize

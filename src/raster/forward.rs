@@ -23,7 +23,25 @@ impl Rasterizer {
         background: [f32; 3],
         out: &mut RenderOutput,
     ) {
+        self.bin(splats, width, height);
+        self.blend(splats, width, height, background, out);
+    }
+
+    /// Bins `splats` into depth-sorted tile lists (the first half of [`Rasterizer::forward`]).
+    pub fn bin(&mut self, splats: &[Splat], width: usize, height: usize) {
         self.bins.build(splats, width, height);
+    }
+
+    /// Blends the splats binned by the last [`Rasterizer::bin`] call (the second half of
+    /// [`Rasterizer::forward`]).
+    pub fn blend(
+        &mut self,
+        splats: &[Splat],
+        width: usize,
+        height: usize,
+        background: [f32; 3],
+        out: &mut RenderOutput,
+    ) {
         self.background = background;
         let tile_count = self.bins.tiles_x * self.bins.tiles_y;
         let pixel_slots = tile_count * TILE_PIXELS;

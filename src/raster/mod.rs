@@ -105,6 +105,18 @@ impl Rasterizer {
         self.bins.entry_count()
     }
 
+    /// Heap bytes held by the rasterizer's reusable buffers.
+    pub fn heap_bytes(&self) -> usize {
+        fn bytes<T>(v: &Vec<T>) -> usize {
+            v.capacity() * std::mem::size_of::<T>()
+        }
+        self.bins.heap_bytes()
+            + bytes(&self.final_transmittance)
+            + bytes(&self.contributors)
+            + bytes(&self.tile_color)
+            + bytes(&self.entry_grads)
+    }
+
     fn tiles_x(&self) -> usize {
         self.bins.tiles_x
     }
@@ -196,3 +208,12 @@ fn untile<T: Copy + Send + Sync>(
 
 #[cfg(test)]
 mod tests;
+
+/// The instruction set the pixel loops run with on this CPU (chosen at run time).
+pub fn simd_level() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+        return "x86-64 AVX2 + FMA";
+    }
+    "baseline"
+}
