@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use super::binning::split_by_offsets;
+use super::binning::for_each_tile_mut;
 use super::{
     ALPHA_MAX, F8, GROUPS, LANES, M8, Packed, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS,
     box_in_tile, dispatch_simd, falloff_lanes, group_lanes, row_columns,
@@ -31,12 +31,12 @@ impl Rasterizer {
         let packed = &self.packed;
         let final_t = &self.final_transmittance;
         let contributors = &self.contributors;
-        let mut per_tile = split_by_offsets(&mut self.entry_grads, &bins.tile_offsets);
-        per_tile
-            .par_iter_mut()
-            .enumerate()
-            .with_max_len(1)
-            .for_each(|(tile, entry_grads)| {
+        let tile_count = bins.tile_offsets.len() - 1;
+        for_each_tile_mut(
+            &mut self.entry_grads,
+            &bins.tile_offsets,
+            0..tile_count,
+            &|tile, entry_grads| {
                 let entries = &bins.sorted_splats[bins.tile_range(tile)];
                 let pixels = tile * TILE_PIXELS..(tile + 1) * TILE_PIXELS;
                 let origin = ((tile % tiles_x) * TILE, (tile / tiles_x) * TILE);
@@ -51,8 +51,8 @@ impl Rasterizer {
                     &contributors[pixels],
                     entry_grads,
                 );
-            });
-        drop(per_tile);
+            },
+        );
 
         // Reduce the per-(tile, splat) partial sums to one gradient per splat.
         let bins = &self.bins;

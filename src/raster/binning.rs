@@ -140,13 +140,27 @@ fn tile_rect(s: &Splat, tiles_x: f32, tiles_y: f32) -> [u32; 4] {
     [x0 as u32, y0 as u32, x1 as u32, y1 as u32]
 }
 
-/// Splits `data` into consecutive mutable slices at `offsets` (len = pieces + 1).
-pub(super) fn split_by_offsets<'a, T>(mut data: &'a mut [T], offsets: &[u32]) -> Vec<&'a mut [T]> {
-    let mut pieces = Vec::with_capacity(offsets.len().saturating_sub(1));
-    for w in offsets.windows(2) {
-        let (head, tail) = data.split_at_mut((w[1] - w[0]) as usize);
-        pieces.push(head);
-        data = tail;
+/// Calls `f(tile, piece)` in parallel for every tile, where `piece` is the tile's part of
+/// `data` (tile t owns `offsets[t]..offsets[t + 1]`, offsets starting at 0). Splits the range in
+/// halves with `rayon::join`, so nothing is allocated and idle threads steal the larger halves.
+pub(super) fn for_each_tile_mut<T: Send>(
+    data: &mut [T],
+    offsets: &[u32],
+    tiles: std::ops::Range<usize>,
+    f: &(impl Fn(usize, &mut [T]) + Sync),
+) {
+    if tiles.len() == 1 {
+        f(tiles.start, data);
+        return;
     }
-    pieces
+    if tiles.is_empty() {
+        return;
+    }
+    let mid = tiles.start + tiles.len() / 2;
+    let split = (offsets[mid] - offsets[tiles.start]) as usize;
+    let (left, right) = data.split_at_mut(split);
+    rayon::join(
+        || for_each_tile_mut(left, offsets, tiles.start..mid, f),
+        || for_each_tile_mut(right, offsets, mid..tiles.end, f),
+    );
 }

@@ -418,17 +418,18 @@ macro_rules! dispatch_simd {
 }
 pub(crate) use dispatch_simd;
 
-/// Whether this CPU runs the AVX2 versions of the pixel loops (detected once, cached by std).
+/// Whether the pixel loops run their AVX2 versions: when this CPU has AVX2 and FMA, unless
+/// `TADGS_SIMD=baseline` asks for the baseline ones (to compare them). Decided once.
 #[inline]
 fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    static AVX2: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *AVX2.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        let detected = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+        #[cfg(not(target_arch = "x86_64"))]
+        let detected = false;
+        detected && std::env::var("TADGS_SIMD").as_deref() != Ok("baseline")
+    })
 }
 
 /// The instruction set the pixel loops run with on this CPU (chosen at run time).
