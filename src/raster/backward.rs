@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use super::binning::for_each_tile_mut;
 use super::{
     ALPHA_MAX, F8, GROUPS, LANES, M8, Packed, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS,
-    box_in_tile, dispatch_simd, falloff_lanes, group_lanes, row_columns,
+    box_in_tile, falloff_lanes, group_lanes, row_columns, simd_kernel,
 };
 
 impl Rasterizer {
@@ -67,22 +67,6 @@ impl Rasterizer {
     }
 }
 
-dispatch_simd!(
-    backward_tile,
-    (
-        entries: &[u32],
-        splats: &[Packed],
-        origin: (usize, usize),
-        size: (usize, usize),
-        background: [f32; 3],
-        d_color: &[[f32; 3]],
-        final_t: &[f32],
-        contributors: &[u32],
-        entry_grads: &mut [SplatGrad],
-    ),
-    backward_tile_body
-);
-
 /// Per-pixel state of the backward walk, in lane groups (group r holds pixels r·8 .. r·8 + 8).
 struct PixelState {
     /// Transmittance in front of the splat being visited.
@@ -98,77 +82,77 @@ struct PixelState {
     contributors: [[u32; LANES]; GROUPS],
 }
 
-/// Walks every pixel's contributors back to front, accumulating one gradient per tile entry.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn backward_tile_body(
-    entries: &[u32],
-    splats: &[Packed],
-    origin: (usize, usize),
-    size: (usize, usize),
-    background: [f32; 3],
-    d_color: &[[f32; 3]],
-    final_t: &[f32],
-    contributors: &[u32],
-    entry_grads: &mut [SplatGrad],
-) {
-    let zero = [[0f32; LANES]; GROUPS];
-    let mut st = PixelState {
-        transmittance: zero,
-        accum: [zero; 3],
-        last_alpha: zero,
-        last_color: [zero; 3],
-        d_pixel: [zero; 3],
-        bg_dot: zero,
-        final_t: zero,
-        contributors: [[0; LANES]; GROUPS],
-    };
-    // Groups whose pixels all stopped before entry k are skipped.
-    let mut group_contributors = [0u32; GROUPS];
-    for r in 0..GROUPS {
-        for x in 0..LANES {
-            let p = r * LANES + x;
-            let (px, py) = (origin.0 + p % TILE, origin.1 + p / TILE);
-            if px < size.0 && py < size.1 {
-                let d = d_color[py * size.0 + px];
-                st.transmittance[r][x] = final_t[p];
-                st.final_t[r][x] = final_t[p];
-                st.contributors[r][x] = contributors[p];
-                for c in 0..3 {
-                    st.d_pixel[c][r][x] = d[c];
-                }
-                st.bg_dot[r][x] = (0..3).map(|c| background[c] * d[c]).sum();
-                group_contributors[r] = group_contributors[r].max(contributors[p]);
-            }
-        }
-    }
-    let max_contributor = group_contributors.iter().copied().max().unwrap_or(0) as usize;
-
-    for k in (0..max_contributor).rev() {
-        let sp = &splats[entries[k] as usize];
-        let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
-        // Lane-wise partial sums of the nine gradient entries, reduced once per (tile, splat).
-        let mut acc = [F8::default(); 9];
-        for y in y0..y1 {
-            let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-            let (cx0, cx1) = row_columns(sp, origin.0, dy, (x0, x1));
-            for h in cx0 / LANES..cx1.div_ceil(LANES) {
-                let r = y * (TILE / LANES) + h;
-                if k as u32 >= group_contributors[r] {
-                    continue;
-                }
-                let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
-                let lanes = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
-                backward_lanes(sp, &mut st, r, k as u32, dy, lanes, &mut acc);
-            }
-        }
-        let sum = acc.map(F8::sum);
-        entry_grads[k] = SplatGrad {
-            mean2d: glam::Vec2::new(sum[0], sum[1]),
-            conic: [sum[2], sum[3], sum[4]],
-            opacity: sum[5],
-            color: [sum[6], sum[7], sum[8]],
+simd_kernel! {
+    /// Walks every pixel's contributors back to front, accumulating one gradient per tile entry.
+    fn backward_tile(
+        entries: &[u32],
+        splats: &[Packed],
+        origin: (usize, usize),
+        size: (usize, usize),
+        background: [f32; 3],
+        d_color: &[[f32; 3]],
+        final_t: &[f32],
+        contributors: &[u32],
+        entry_grads: &mut [SplatGrad],
+    ) {
+        let zero = [[0f32; LANES]; GROUPS];
+        let mut st = PixelState {
+            transmittance: zero,
+            accum: [zero; 3],
+            last_alpha: zero,
+            last_color: [zero; 3],
+            d_pixel: [zero; 3],
+            bg_dot: zero,
+            final_t: zero,
+            contributors: [[0; LANES]; GROUPS],
         };
+        // Groups whose pixels all stopped before entry k are skipped.
+        let mut group_contributors = [0u32; GROUPS];
+        for r in 0..GROUPS {
+            for x in 0..LANES {
+                let p = r * LANES + x;
+                let (px, py) = (origin.0 + p % TILE, origin.1 + p / TILE);
+                if px < size.0 && py < size.1 {
+                    let d = d_color[py * size.0 + px];
+                    st.transmittance[r][x] = final_t[p];
+                    st.final_t[r][x] = final_t[p];
+                    st.contributors[r][x] = contributors[p];
+                    for c in 0..3 {
+                        st.d_pixel[c][r][x] = d[c];
+                    }
+                    st.bg_dot[r][x] = (0..3).map(|c| background[c] * d[c]).sum();
+                    group_contributors[r] = group_contributors[r].max(contributors[p]);
+                }
+            }
+        }
+        let max_contributor = group_contributors.iter().copied().max().unwrap_or(0) as usize;
+
+        for k in (0..max_contributor).rev() {
+            let sp = &splats[entries[k] as usize];
+            let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
+            // Lane-wise partial sums of the nine gradient entries, reduced once per (tile, splat).
+            let mut acc = [F8::default(); 9];
+            for y in y0..y1 {
+                let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
+                let (cx0, cx1) = row_columns(sp, origin.0, dy, (x0, x1));
+                for h in cx0 / LANES..cx1.div_ceil(LANES) {
+                    let r = y * (TILE / LANES) + h;
+                    if k as u32 >= group_contributors[r] {
+                        continue;
+                    }
+                    let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
+                    let lanes = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
+                    backward_lanes(sp, &mut st, r, k as u32, dy, lanes, &mut acc);
+                }
+            }
+            let sum = acc.map(F8::sum);
+            entry_grads[k] = SplatGrad {
+                mean2d: glam::Vec2::new(sum[0], sum[1]),
+                conic: [sum[2], sum[3], sum[4]],
+                opacity: sum[5],
+                color: [sum[6], sum[7], sum[8]],
+            };
+        }
     }
 }
 

@@ -4,7 +4,7 @@ use rayon::prelude::*;
 
 use super::{
     ALPHA_MAX, GROUPS, LANES, Packed, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS,
-    TRANSMITTANCE_MIN, box_in_tile, dispatch_simd, falloff_lanes, group_lanes, pick, row_columns,
+    TRANSMITTANCE_MIN, box_in_tile, falloff_lanes, group_lanes, pick, row_columns, simd_kernel,
 };
 
 /// Gaussian falloff exponent at offset (dx, dy) from the centre.
@@ -103,9 +103,10 @@ impl Rasterizer {
     }
 }
 
-dispatch_simd!(
-    blend_tile,
-    (
+simd_kernel! {
+    /// Blends one tile. Pixels outside the image keep transmittance 1 and no contributors.
+    /// `color` holds the tile's 256 red, then green, then blue values.
+    fn blend_tile(
         entries: &[u32],
         splats: &[Packed],
         origin: (usize, usize),
@@ -114,89 +115,73 @@ dispatch_simd!(
         color: &mut [f32],
         transmittance: &mut [f32],
         contributors: &mut [u32],
-    ),
-    blend_tile_body
-);
-
-/// Blends one tile. Pixels outside the image keep transmittance 1 and no contributors.
-/// `color` holds the tile's 256 red, then green, then blue values.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn blend_tile_body(
-    entries: &[u32],
-    splats: &[Packed],
-    origin: (usize, usize),
-    size: (usize, usize),
-    background: [f32; 3],
-    color: &mut [f32],
-    transmittance: &mut [f32],
-    contributors: &mut [u32],
-) {
-    // Per-pixel state in lane groups: group r holds pixels r·8 .. r·8 + 8 of the tile.
-    let mut t = [[1f32; LANES]; GROUPS];
-    let mut rgb = [[[0f32; LANES]; GROUPS]; 3];
-    let mut last = [[0u32; LANES]; GROUPS];
-    // 1 until the pixel stops; `live_count` per group lets finished groups be skipped.
-    let mut live = [[0f32; LANES]; GROUPS];
-    let mut live_count = [0u32; GROUPS];
-    for (r, group) in live.iter_mut().enumerate() {
-        for (x, l) in group.iter_mut().enumerate() {
-            let p = r * LANES + x;
-            let inside = origin.0 + p % TILE < size.0 && origin.1 + p / TILE < size.1;
-            *l = inside as u32 as f32;
-            live_count[r] += inside as u32;
+    ) {
+        // Per-pixel state in lane groups: group r holds pixels r·8 .. r·8 + 8 of the tile.
+        let mut t = [[1f32; LANES]; GROUPS];
+        let mut rgb = [[[0f32; LANES]; GROUPS]; 3];
+        let mut last = [[0u32; LANES]; GROUPS];
+        // 1 until the pixel stops; `live_count` per group lets finished groups be skipped.
+        let mut live = [[0f32; LANES]; GROUPS];
+        let mut live_count = [0u32; GROUPS];
+        for (r, group) in live.iter_mut().enumerate() {
+            for (x, l) in group.iter_mut().enumerate() {
+                let p = r * LANES + x;
+                let inside = origin.0 + p % TILE < size.0 && origin.1 + p / TILE < size.1;
+                *l = inside as u32 as f32;
+                live_count[r] += inside as u32;
+            }
         }
-    }
-    let mut remaining: u32 = live_count.iter().sum();
+        let mut remaining: u32 = live_count.iter().sum();
 
-    for (k, &s) in entries.iter().enumerate() {
-        if remaining == 0 {
-            break;
-        }
-        let sp = &splats[s as usize];
-        let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
-        let contributor = k as u32 + 1;
-        for y in y0..y1 {
-            let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-            let (cx0, cx1) = row_columns(sp, origin.0, dy, (x0, x1));
-            for h in cx0 / LANES..cx1.div_ceil(LANES) {
-                let r = y * (TILE / LANES) + h;
-                if live_count[r] == 0 {
-                    continue;
-                }
-                let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
-                let (_, gauss) = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
-                let (t, live, last) = (&mut t[r], &mut live[r], &mut last[r]);
-                let mut stopped = 0u32;
-                for x in 0..LANES {
-                    let raw = sp.opacity * gauss[x];
-                    let alpha = pick(raw < ALPHA_MAX, raw, ALPHA_MAX);
-                    let drawn = (gauss[x] > 0.0) & (live[x] > 0.0);
-                    let next = t[x] * (1.0 - alpha);
-                    let stop = drawn & (next < TRANSMITTANCE_MIN);
-                    let blend = drawn & !stop;
-                    let w = pick(blend, alpha * t[x], 0.0);
-                    for c in 0..3 {
-                        rgb[c][r][x] += sp.color[c] * w;
+        for (k, &s) in entries.iter().enumerate() {
+            if remaining == 0 {
+                break;
+            }
+            let sp = &splats[s as usize];
+            let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
+            let contributor = k as u32 + 1;
+            for y in y0..y1 {
+                let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
+                let (cx0, cx1) = row_columns(sp, origin.0, dy, (x0, x1));
+                for h in cx0 / LANES..cx1.div_ceil(LANES) {
+                    let r = y * (TILE / LANES) + h;
+                    if live_count[r] == 0 {
+                        continue;
                     }
-                    t[x] = pick(blend, next, t[x]);
-                    last[x] = if blend { contributor } else { last[x] };
-                    live[x] = pick(stop, 0.0, live[x]);
-                    stopped += stop as u32;
+                    let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
+                    let (_, gauss) = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
+                    let (t, live, last) = (&mut t[r], &mut live[r], &mut last[r]);
+                    let mut stopped = 0u32;
+                    for x in 0..LANES {
+                        let raw = sp.opacity * gauss[x];
+                        let alpha = pick(raw < ALPHA_MAX, raw, ALPHA_MAX);
+                        let drawn = (gauss[x] > 0.0) & (live[x] > 0.0);
+                        let next = t[x] * (1.0 - alpha);
+                        let stop = drawn & (next < TRANSMITTANCE_MIN);
+                        let blend = drawn & !stop;
+                        let w = pick(blend, alpha * t[x], 0.0);
+                        for c in 0..3 {
+                            rgb[c][r][x] += sp.color[c] * w;
+                        }
+                        t[x] = pick(blend, next, t[x]);
+                        last[x] = if blend { contributor } else { last[x] };
+                        live[x] = pick(stop, 0.0, live[x]);
+                        stopped += stop as u32;
+                    }
+                    live_count[r] -= stopped;
+                    remaining -= stopped;
                 }
-                live_count[r] -= stopped;
-                remaining -= stopped;
             }
         }
-    }
-    for r in 0..GROUPS {
-        for x in 0..LANES {
-            let p = r * LANES + x;
-            for c in 0..3 {
-                color[c * TILE_PIXELS + p] = rgb[c][r][x] + t[r][x] * background[c];
+        for r in 0..GROUPS {
+            for x in 0..LANES {
+                let p = r * LANES + x;
+                for c in 0..3 {
+                    color[c * TILE_PIXELS + p] = rgb[c][r][x] + t[r][x] * background[c];
+                }
+                transmittance[p] = t[r][x];
+                contributors[p] = last[r][x];
             }
-            transmittance[p] = t[r][x];
-            contributors[p] = last[r][x];
         }
     }
 }

@@ -394,29 +394,34 @@ impl M8 {
     }
 }
 
-/// Runs `$body` compiled for AVX2 + FMA when the CPU has them, else for the baseline target.
-/// `$body` must be an `#[inline(always)]` call so that it is compiled into each version.
-macro_rules! dispatch_simd {
-    ($name:ident, ($($arg:ident: $ty:ty),* $(,)?), $body:path) => {
+/// Defines a pixel-loop function compiled twice, for AVX2 + FMA and for the baseline target,
+/// that runs the AVX2 version when the CPU has it ([`has_avx2`]).
+macro_rules! simd_kernel {
+    ($(#[$meta:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+        $(#[$meta])*
         #[allow(clippy::too_many_arguments)]
         fn $name($($arg: $ty),*) {
+            #[inline(always)]
+            #[allow(clippy::too_many_arguments)]
+            fn body($($arg: $ty),*) $body
+
             #[cfg(target_arch = "x86_64")]
             {
                 #[target_feature(enable = "avx2,fma")]
                 #[allow(clippy::too_many_arguments)]
                 fn avx2($($arg: $ty),*) {
-                    $body($($arg),*)
+                    body($($arg),*)
                 }
                 if $crate::raster::has_avx2() {
                     // SAFETY: the CPU supports AVX2 and FMA (checked at run time).
                     return unsafe { avx2($($arg),*) };
                 }
             }
-            $body($($arg),*)
+            body($($arg),*)
         }
     };
 }
-pub(crate) use dispatch_simd;
+pub(crate) use simd_kernel;
 
 /// Whether the pixel loops run their AVX2 versions: when this CPU has AVX2 and FMA, unless
 /// `TADGS_SIMD=baseline` asks for the baseline ones (to compare them). Decided once.
