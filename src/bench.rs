@@ -224,28 +224,28 @@ pub fn run(n: usize, width: u32, height: u32, repeats: usize) -> BenchReport {
         None => samples.push((stage, vec![ms], vec![cpu])),
     };
     for _ in 0..repeats {
-        let mut cached =
+        let mut timed =
             |world: &mut World, stage, f: fn(&mut World)| record(stage, time_ms(|| f(world)));
-        cached(&mut world, "sample view", |w| {
+        timed(&mut world, "sample view", |w| {
             w.run_system_cached(sample_view::advance_iteration).unwrap();
             w.run_system_cached(sample_view::sample_view).unwrap();
         });
-        cached(&mut world, "time warp", |w| {
+        timed(&mut world, "time warp", |w| {
             w.run_system_cached(time_warp::time_warp).unwrap()
         });
-        cached(&mut world, "deform", |w| {
+        timed(&mut world, "deform", |w| {
             w.run_system_cached(deform::deform).unwrap()
         });
-        cached(&mut world, "splat (project + bin + blend)", |w| {
+        timed(&mut world, "splat (project + bin + blend)", |w| {
             w.run_system_cached(splat::splat).unwrap()
         });
-        cached(&mut world, "loss (L1 + D-SSIM)", |w| {
+        timed(&mut world, "loss (L1 + D-SSIM)", |w| {
             w.run_system_cached(loss::loss).unwrap()
         });
-        cached(&mut world, "backward (raster + projection)", |w| {
+        timed(&mut world, "backward (raster + projection)", |w| {
             w.run_system_cached(backward::backward_splats).unwrap()
         });
-        cached(&mut world, "backward (deformation)", |w| {
+        timed(&mut world, "backward (deformation)", |w| {
             w.run_system_cached(backward::backward_parameters).unwrap()
         });
         record("adam", time_ms(|| adam_only.run(&mut world)));
