@@ -372,10 +372,10 @@ impl F8 {
     /// `self` where `m`, else `other`.
     #[inline(always)]
     fn select(self, m: M8, other: F8) -> F8 {
-        let bits = lanewise!(self.0, other.0, |x, y| (x.to_bits(), y.to_bits()));
         let mut out = [0f32; LANES];
         for i in 0..LANES {
-            out[i] = f32::from_bits((bits[i].0 & m.0[i]) | (bits[i].1 & !m.0[i]));
+            let bits = (self.0[i].to_bits() & m.0[i]) | (other.0[i].to_bits() & !m.0[i]);
+            out[i] = f32::from_bits(bits);
         }
         F8(out)
     }
@@ -390,7 +390,11 @@ impl M8 {
     /// Lanes where `k < values[i]`.
     #[inline(always)]
     fn below(k: u32, values: [u32; LANES]) -> M8 {
-        M8(values.map(|v| if k < v { !0 } else { 0 }))
+        let mut out = [0u32; LANES];
+        for i in 0..LANES {
+            out[i] = if k < values[i] { !0 } else { 0 };
+        }
+        M8(out)
     }
 }
 
