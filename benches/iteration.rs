@@ -1,186 +1,129 @@
-//! One training iteration (forward + loss + backward + Adam, no densification) at 640×360 on
-//! the fixed benchmark population: N Gaussians from a seeded RNG, static, SH degree 0, on the
-//! CPU backend and on the GPU backend (skipped with a message where no adapter opens).
+//! Criterion benches of the CPU backend on the fixed benchmark scene (see `tadgs::bench`):
+//! every stage of a training iteration, a whole iteration and a render at a new time, at
+//! 100k Gaussians and 640×360.
+//!
+//! `TADGS_BENCH_SWEEP=1 cargo bench --bench iteration` adds the sweep over 10k / 100k / 1M
+//! Gaussians × 320×180 / 640×360 / 1280×720 (forward and backward rasterization, and whole
+//! iterations), which takes several minutes.
 
-use std::sync::Arc;
+use std::time::Duration;
 
 use bevy_ecs::prelude::*;
-use criterion::{Criterion, criterion_group, criterion_main};
-use glam::{Mat4, Vec3};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
-use tadgs::components::*;
-use tadgs::data::{Camera, Dataset};
-use tadgs::gpu::{GpuError, GpuRasterizer};
-use tadgs::io::image::Image;
-use tadgs::model::deform::logit;
-use tadgs::model::sh::rgb_to_sh_dc;
-use tadgs::raster::{Rasterizer, RenderOutput};
-use tadgs::resources::SplatBuffers;
-use tadgs::scene::{BackendKind, DataSource, SceneConfig};
-use tadgs::systems::training_schedule;
-use tadgs::train::insert_resources;
+use criterion::{
+    BenchmarkGroup, Criterion, criterion_group, criterion_main, measurement::WallTime,
+};
+use tadgs::bench::benchmark_world;
+use tadgs::resources::{LossImage, SplatBuffers, ViewSample};
+use tadgs::systems::{adam, backward, deform, render_schedule, splat, training_schedule};
 
-const WIDTH: u32 = 640;
-const HEIGHT: u32 = 360;
-
-fn camera() -> Camera {
-    Camera {
-        width: WIDTH,
-        height: HEIGHT,
-        fx: 500.0,
-        fy: 500.0,
-        cx: 320.0,
-        cy: 180.0,
-        world_to_camera: Mat4::IDENTITY,
-    }
-}
-
-/// The benchmark population: means x ~ U(−2, 2), y ~ U(−1.2, 1.2), z ~ U(2, 6); normalised
-/// standard-normal quaternions; scales exp(U(−4.5, −2.5)); opacity U(0.1, 0.9); colour U(0, 1).
-fn benchmark_gaussians(n: usize, seed: u64) -> Vec<GaussianParams> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    (0..n)
-        .map(|_| {
-            let mut q = [0f32; 4];
-            q.iter_mut().for_each(|c| *c = rng.sample(StandardNormal));
-            let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
-            let mut color = Color::default();
-            color.sh[0] = [rng.random::<f32>(), rng.random(), rng.random()].map(rgb_to_sh_dc);
-            GaussianParams {
-                position: Position {
-                    mean: Vec3::new(
-                        rng.random_range(-2.0..2.0),
-                        rng.random_range(-1.2..1.2),
-                        rng.random_range(2.0..6.0),
-                    )
-                    .to_array(),
-                },
-                // Centred at t = 0 with a long lifespan, so every Gaussian is drawn.
-                temporal: Temporal {
-                    center: 0.0,
-                    scale: [-10.0, -10.0],
-                },
-                opacity: Opacity {
-                    logit: logit(rng.random_range(0.1..0.9)),
-                },
-                rotation: Rotation {
-                    c0: q.map(|c| c / norm),
-                    c1: [0.0; 4],
-                },
-                scale: Scale {
-                    d0: [(); 3].map(|_| rng.random_range(-4.5..-2.5)),
-                    d1: [0.0; 3],
-                },
-                color,
-                ..Default::default()
-            }
-        })
-        .collect()
-}
-
-/// The benchmark world on `backend`, or None when that backend cannot start.
-fn world_with(n: usize, backend: BackendKind) -> Option<World> {
-    let cam = camera();
-    let target: Vec<[f32; 3]> = (0..(WIDTH * HEIGHT) as usize)
-        .map(|i| [((i % 97) as f32) / 97.0, 0.5, 0.3])
-        .collect();
-    let image = Image {
-        width: WIDTH as usize,
-        height: HEIGHT as usize,
-        data: target,
-    };
-    let dataset = Dataset::single_camera(cam, 1, &image);
-    let mut config = SceneConfig::new(
-        "bench",
-        DataSource::Synthetic(tadgs::data::synthetic::demo_scene()),
-    );
-    config.model.sh_degree = 0;
-    config.densify.until_iter = 0; // no densification
-    config.densify.opacity_reset_interval = 0;
-    config.train.backend = backend;
-    let mut world = World::new();
-    if let Err(e) = insert_resources(&mut world, &config, Arc::new(dataset)) {
-        eprintln!("skipping the {backend:?} backend: {e}");
-        return None;
-    }
-    world.spawn_batch(
-        benchmark_gaussians(n, 42)
-            .into_iter()
-            .map(GaussianParams::bundle)
-            .collect::<Vec<_>>(),
-    );
-    Some(world)
-}
-
-fn bench_iteration(c: &mut Criterion) {
-    let mut group = c.benchmark_group("train_iteration_640x360");
+fn short(group: &mut BenchmarkGroup<'_, WallTime>) {
     group.sample_size(10);
-    for n in [100_000usize] {
-        for (backend, name) in [(BackendKind::Cpu, "cpu"), (BackendKind::Gpu, "gpu")] {
-            let Some(mut world) = world_with(n, backend) else {
-                continue;
-            };
-            if let Some(gpu) = world.get_resource::<tadgs::gpu::GpuRasterizer>() {
-                eprintln!("GPU backend: {}", gpu.describe());
-            }
-            let mut schedule = training_schedule();
-            schedule.run(&mut world); // warm-up: buffers reach their size
-            group.bench_function(format!("{n}_gaussians_{name}"), |b| {
-                b.iter(|| schedule.run(&mut world))
+    group.warm_up_time(Duration::from_secs(1));
+    group.measurement_time(Duration::from_secs(3));
+}
+
+/// A world at 100k / 640×360 after two training iterations (buffers at their size).
+fn warm_world(n: usize, width: u32, height: u32, motion: bool) -> World {
+    let mut world = benchmark_world(n, width, height, motion);
+    let mut train = training_schedule();
+    train.run(&mut world);
+    train.run(&mut world);
+    world
+}
+
+fn stages(c: &mut Criterion) {
+    let (n, w, h) = (100_000, 640, 360);
+    let mut group = c.benchmark_group("stage_100k_640x360");
+    short(&mut group);
+
+    // Deformation of a moving population (random Fourier motion, temporal centres and widths).
+    let mut moving = warm_world(n, w, h, true);
+    group.bench_function("deform", |b| {
+        b.iter(|| moving.run_system_cached(deform::deform).unwrap())
+    });
+
+    let mut world = warm_world(n, w, h, false);
+    let camera = world.resource::<ViewSample>().camera;
+    let (wu, hu) = (w as usize, h as usize);
+    group.bench_function("project_and_bin", |b| {
+        b.iter(|| {
+            let mut buffers = world.resource_mut::<SplatBuffers>();
+            let buffers = &mut *buffers;
+            splat::project_all(&buffers.deformed, &camera, 0.01, &mut buffers.splats);
+            buffers.rasterizer.bin(&buffers.splats, wu, hu);
+        })
+    });
+    group.bench_function("forward_blend", |b| {
+        b.iter(|| {
+            let mut buffers = world.resource_mut::<SplatBuffers>();
+            let buffers = &mut *buffers;
+            buffers
+                .rasterizer
+                .blend(wu, hu, [0.0; 3], &mut buffers.render);
+        })
+    });
+    group.bench_function("loss", |b| {
+        b.iter(|| world.run_system_cached(tadgs::systems::loss::loss).unwrap())
+    });
+    group.bench_function("backward_raster", |b| {
+        let d_color = world.resource::<LossImage>().d_color.clone();
+        b.iter(|| {
+            let mut buffers = world.resource_mut::<SplatBuffers>();
+            let buffers = &mut *buffers;
+            buffers
+                .rasterizer
+                .backward(&buffers.splats, &d_color, wu, &mut buffers.splat_grads);
+        })
+    });
+    group.bench_function("backward_projection_and_deformation", |b| {
+        b.iter(|| {
+            let splats: bevy_ecs::error::Result =
+                world.run_system_cached(backward::backward_splats).unwrap();
+            splats.unwrap();
+            world
+                .run_system_cached(backward::backward_parameters)
+                .unwrap();
+        })
+    });
+    let mut adam_only = Schedule::default();
+    adam_only.add_systems(adam::adam_systems());
+    group.bench_function("adam", |b| b.iter(|| adam_only.run(&mut world)));
+
+    let mut train = training_schedule();
+    group.bench_function("training_iteration", |b| b.iter(|| train.run(&mut world)));
+    let mut render = render_schedule();
+    let mut t = 0.0f32;
+    group.bench_function("render_at_new_time", |b| {
+        b.iter(|| {
+            t = (t + 0.37) % 1.0;
+            world.resource_mut::<ViewSample>().time = t;
+            render.run(&mut world);
+        })
+    });
+    group.finish();
+}
+
+fn sweep(c: &mut Criterion) {
+    if std::env::var_os("TADGS_BENCH_SWEEP").is_none() {
+        return;
+    }
+    let mut group = c.benchmark_group("sweep");
+    short(&mut group);
+    for n in [10_000usize, 100_000, 1_000_000] {
+        for (w, h) in [(320u32, 180u32), (640, 360), (1280, 720)] {
+            let mut world = warm_world(n, w, h, false);
+            let mut train = training_schedule();
+            let mut render = render_schedule();
+            group.bench_function(format!("render/{n}/{w}x{h}"), |b| {
+                b.iter(|| render.run(&mut world))
+            });
+            group.bench_function(format!("iteration/{n}/{w}x{h}"), |b| {
+                b.iter(|| train.run(&mut world))
             });
         }
     }
     group.finish();
 }
 
-/// Blending alone (forward + backward, the splats of the benchmark population at 640×360) on
-/// the CPU rasterizer and on each GPU backward path.
-fn bench_blending(c: &mut Criterion) {
-    let n = 100_000;
-    let Some(mut world) = world_with(n, BackendKind::Cpu) else {
-        return;
-    };
-    tadgs::systems::render_schedule().run(&mut world);
-    let splats = world.resource::<SplatBuffers>().splats.clone();
-    let (width, height) = (WIDTH as usize, HEIGHT as usize);
-    let d_color = vec![[1e-3f32, -2e-3, 5e-4]; width * height];
-    let mut out = RenderOutput::default();
-    let mut grads = Vec::new();
-    let mut group = c.benchmark_group("blend_forward_backward_640x360");
-    group.sample_size(10);
-    let mut cpu = Rasterizer::new();
-    group.bench_function(format!("{n}_gaussians_cpu"), |b| {
-        b.iter(|| {
-            cpu.forward(&splats, width, height, [0.0; 3], &mut out);
-            cpu.backward(&splats, &d_color, width, &mut grads);
-        })
-    });
-    let open: [(&str, fn() -> Result<GpuRasterizer, GpuError>); 2] = [
-        ("gpu_default", GpuRasterizer::new),
-        ("gpu_tile_sums", GpuRasterizer::portable),
-    ];
-    for (name, open) in open {
-        let mut gpu = match open() {
-            Ok(gpu) => gpu,
-            Err(e) => {
-                eprintln!("skipping {name}: {e}");
-                continue;
-            }
-        };
-        eprintln!("{name}: {}", gpu.describe());
-        group.bench_function(format!("{n}_gaussians_{name}"), |b| {
-            b.iter(|| {
-                gpu.forward(&splats, width, height, [0.0; 3], &mut out)
-                    .expect("GPU forward");
-                gpu.backward(&splats, &d_color, &mut grads)
-                    .expect("GPU backward");
-            })
-        });
-    }
-    group.finish();
-}
-
-criterion_group!(benches, bench_iteration, bench_blending);
+criterion_group!(benches, stages, sweep);
 criterion_main!(benches);

@@ -51,6 +51,7 @@
 //! [`train::insert_render_resources`] with [`systems::render_schedule`] draws a trained model
 //! without any training system. The `examples/` folder shows all three.
 
+pub mod bench;
 pub mod budget;
 pub mod components;
 pub mod data;

@@ -46,6 +46,8 @@ enum Command {
     /// Describe a scene file (resolved settings), a run folder, a model, a splat PLY or a
     /// checkpoint.
     Info(cli::info::InfoCommand),
+    /// Time every stage of a training iteration on the fixed benchmark scene and print a table.
+    Bench(tadgs::bench::BenchArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -93,6 +95,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(args) => cli::export::export(args, ui),
         Command::Masks(args) => cli::eval::masks(args, ui),
         Command::Info(args) => cli::info::info(args),
+        Command::Bench(args) => tadgs::bench::cli(&args),
     }
 }
 

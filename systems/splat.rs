@@ -26,11 +26,12 @@ pub fn splat(
         splat_slot.0 = slot as u32;
         buffers.deformed.push(*deformed);
     }
-    buffers
-        .deformed
-        .par_iter()
-        .map(|d| project_splat(d, &camera, settings.train.near_plane))
-        .collect_into_vec(&mut buffers.splats);
+    project_all(
+        &buffers.deformed,
+        &camera,
+        settings.train.near_plane,
+        &mut buffers.splats,
+    );
     let (width, height) = (camera.width as usize, camera.height as usize);
     let background = settings.train.background;
     match gpu {
@@ -50,6 +51,20 @@ pub fn splat(
         ),
     }
     Ok(())
+}
+
+/// Projects every deformed Gaussian into `splats` (same order); those nearer than `near_plane`
+/// are invisible.
+pub fn project_all(
+    deformed: &[Deformed],
+    camera: &crate::data::Camera,
+    near_plane: f32,
+    splats: &mut Vec<Splat>,
+) {
+    deformed
+        .par_iter()
+        .map(|d| project_splat(d, camera, near_plane))
+        .collect_into_vec(splats);
 }
 
 /// The splat of one deformed Gaussian; invisible when culled (nearer than `near_plane`, off

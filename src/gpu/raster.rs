@@ -202,7 +202,7 @@ impl GpuRasterizer {
         self.host_splats.extend(splats.iter().map(|s| GpuSplat {
             mean: s.mean2d.to_array(),
             extent: s.extent.to_array(),
-            conic: [s.conic[0], s.conic[1], s.conic[2], min_power(s)],
+            conic: [s.conic[0], s.conic[1], s.conic[2], min_power(s.opacity)],
             color: [s.color[0], s.color[1], s.color[2], s.opacity],
         }));
         self.splats.upload(gpu, &self.host_splats);

@@ -2,9 +2,10 @@
 
 use rayon::prelude::*;
 
-use super::binning::split_by_offsets;
+use super::binning::for_each_tile_mut;
 use super::{
-    ALPHA_MAX, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS, box_pixels, falloff_at, min_power,
+    ALPHA_MAX, F8, GROUPS, LANES, M8, Packed, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS,
+    box_in_tile, falloff_lanes, group_lanes, row_columns, simd_kernel,
 };
 
 impl Rasterizer {
@@ -27,19 +28,21 @@ impl Rasterizer {
             .resize(self.bins.entry_count(), SplatGrad::default());
 
         let bins = &self.bins;
+        let packed = &self.packed;
         let final_t = &self.final_transmittance;
         let contributors = &self.contributors;
-        let mut per_tile = split_by_offsets(&mut self.entry_grads, &bins.tile_offsets);
-        per_tile
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(tile, entry_grads)| {
+        let tile_count = bins.tile_offsets.len() - 1;
+        for_each_tile_mut(
+            &mut self.entry_grads,
+            &bins.tile_offsets,
+            0..tile_count,
+            &|tile, entry_grads| {
                 let entries = &bins.sorted_splats[bins.tile_range(tile)];
                 let pixels = tile * TILE_PIXELS..(tile + 1) * TILE_PIXELS;
                 let origin = ((tile % tiles_x) * TILE, (tile / tiles_x) * TILE);
                 backward_tile(
                     entries,
-                    splats,
+                    packed,
                     origin,
                     (width, height),
                     background,
@@ -48,8 +51,8 @@ impl Rasterizer {
                     &contributors[pixels],
                     entry_grads,
                 );
-            });
-        drop(per_tile);
+            },
+        );
 
         // Reduce the per-(tile, splat) partial sums to one gradient per splat.
         let bins = &self.bins;
@@ -64,76 +67,146 @@ impl Rasterizer {
     }
 }
 
-/// Walks every pixel's contributors back to front, accumulating one gradient per tile entry.
-#[allow(clippy::too_many_arguments)]
-fn backward_tile(
-    entries: &[u32],
-    splats: &[Splat],
-    origin: (usize, usize),
-    size: (usize, usize),
-    background: [f32; 3],
-    d_color: &[[f32; 3]],
-    final_t: &[f32],
-    contributors: &[u32],
-    entry_grads: &mut [SplatGrad],
-) {
-    let mut transmittance = [0f32; TILE_PIXELS];
-    let mut d_pixel = [[0f32; 3]; TILE_PIXELS];
-    let mut bg_dot = [0f32; TILE_PIXELS];
-    let mut accum = [[0f32; 3]; TILE_PIXELS];
-    let mut last_alpha = [0f32; TILE_PIXELS];
-    let mut last_color = [[0f32; 3]; TILE_PIXELS];
-    let mut max_contributor = 0usize;
-    for p in 0..TILE_PIXELS {
-        let (x, y) = (origin.0 + p % TILE, origin.1 + p / TILE);
-        if x < size.0 && y < size.1 {
-            transmittance[p] = final_t[p];
-            d_pixel[p] = d_color[y * size.0 + x];
-            bg_dot[p] = (0..3).map(|c| background[c] * d_pixel[p][c]).sum();
-            max_contributor = max_contributor.max(contributors[p] as usize);
-        }
-    }
+/// Per-pixel state of the backward walk, in lane groups (group r holds pixels r·8 .. r·8 + 8).
+struct PixelState {
+    /// Transmittance in front of the splat being visited.
+    transmittance: [[f32; LANES]; GROUPS],
+    /// Colour of everything behind the last visited splat (before blending it).
+    accum: [[[f32; LANES]; GROUPS]; 3],
+    last_alpha: [[f32; LANES]; GROUPS],
+    last_color: [[[f32; LANES]; GROUPS]; 3],
+    d_pixel: [[[f32; LANES]; GROUPS]; 3],
+    /// background · dL/dpixel.
+    bg_dot: [[f32; LANES]; GROUPS],
+    final_t: [[f32; LANES]; GROUPS],
+    contributors: [[u32; LANES]; GROUPS],
+}
 
-    for k in (0..max_contributor).rev() {
-        let sp = &splats[entries[k] as usize];
-        let mut g = SplatGrad::default();
-        let min_power = min_power(sp);
-        for p in box_pixels(sp, origin) {
-            if k >= contributors[p] as usize {
-                continue;
+simd_kernel! {
+    /// Walks every pixel's contributors back to front, accumulating one gradient per tile entry.
+    fn backward_tile(
+        entries: &[u32],
+        splats: &[Packed],
+        origin: (usize, usize),
+        size: (usize, usize),
+        background: [f32; 3],
+        d_color: &[[f32; 3]],
+        final_t: &[f32],
+        contributors: &[u32],
+        entry_grads: &mut [SplatGrad],
+    ) {
+        let zero = [[0f32; LANES]; GROUPS];
+        let mut st = PixelState {
+            transmittance: zero,
+            accum: [zero; 3],
+            last_alpha: zero,
+            last_color: [zero; 3],
+            d_pixel: [zero; 3],
+            bg_dot: zero,
+            final_t: zero,
+            contributors: [[0; LANES]; GROUPS],
+        };
+        // Groups whose pixels all stopped before entry k are skipped.
+        let mut group_contributors = [0u32; GROUPS];
+        for r in 0..GROUPS {
+            for x in 0..LANES {
+                let p = r * LANES + x;
+                let (px, py) = (origin.0 + p % TILE, origin.1 + p / TILE);
+                if px < size.0 && py < size.1 {
+                    let d = d_color[py * size.0 + px];
+                    st.transmittance[r][x] = final_t[p];
+                    st.final_t[r][x] = final_t[p];
+                    st.contributors[r][x] = contributors[p];
+                    for c in 0..3 {
+                        st.d_pixel[c][r][x] = d[c];
+                    }
+                    st.bg_dot[r][x] = (0..3).map(|c| background[c] * d[c]).sum();
+                    group_contributors[r] = group_contributors[r].max(contributors[p]);
+                }
             }
-            let Some((dx, dy, gauss)) = falloff_at(sp, origin, p, min_power) else {
-                continue;
-            };
-            let raw_alpha = sp.opacity * gauss;
-            let alpha = raw_alpha.min(ALPHA_MAX);
-            // Transmittance in front of this splat.
-            let t = transmittance[p] / (1.0 - alpha);
-            transmittance[p] = t;
-            let mut d_alpha = 0.0;
-            for c in 0..3 {
-                // Colour of everything behind this splat, as seen through it.
-                accum[p][c] =
-                    last_alpha[p] * last_color[p][c] + (1.0 - last_alpha[p]) * accum[p][c];
-                last_color[p][c] = sp.color[c];
-                d_alpha += (sp.color[c] - accum[p][c]) * d_pixel[p][c];
-                g.color[c] += alpha * t * d_pixel[p][c];
-            }
-            d_alpha *= t;
-            last_alpha[p] = alpha;
-            // The background is seen through every splat: final_T = t·(1 − alpha)·(rest).
-            d_alpha -= final_t[p] / (1.0 - alpha) * bg_dot[p];
-            if raw_alpha >= ALPHA_MAX {
-                continue; // clamped: no gradient to opacity or shape
-            }
-            g.opacity += gauss * d_alpha;
-            let d_power = sp.opacity * gauss * d_alpha;
-            g.mean2d.x += d_power * (sp.conic[0] * dx + sp.conic[1] * dy);
-            g.mean2d.y += d_power * (sp.conic[2] * dy + sp.conic[1] * dx);
-            g.conic[0] -= 0.5 * dx * dx * d_power;
-            g.conic[1] -= dx * dy * d_power;
-            g.conic[2] -= 0.5 * dy * dy * d_power;
         }
-        entry_grads[k] = g;
+        let max_contributor = group_contributors.iter().copied().max().unwrap_or(0) as usize;
+
+        for k in (0..max_contributor).rev() {
+            let sp = &splats[entries[k] as usize];
+            let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
+            // Lane-wise partial sums of the nine gradient entries, reduced once per (tile, splat).
+            let mut acc = [F8::default(); 9];
+            for y in y0..y1 {
+                let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
+                let (cx0, cx1) = row_columns(sp, origin.0, dy, (x0, x1));
+                for h in cx0 / LANES..cx1.div_ceil(LANES) {
+                    let r = y * (TILE / LANES) + h;
+                    if k as u32 >= group_contributors[r] {
+                        continue;
+                    }
+                    let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
+                    let lanes = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
+                    backward_lanes(sp, &mut st, r, k as u32, dy, lanes, &mut acc);
+                }
+            }
+            let sum = acc.map(F8::sum);
+            entry_grads[k] = SplatGrad {
+                mean2d: glam::Vec2::new(sum[0], sum[1]),
+                conic: [sum[2], sum[3], sum[4]],
+                opacity: sum[5],
+                color: [sum[6], sum[7], sum[8]],
+            };
+        }
     }
+}
+
+/// One lane group of the backward walk for splat entry `k`: un-blends it from every pixel it
+/// was blended into and adds its gradient terms to `acc` (mean x, y; conic a, b, c; opacity;
+/// r, g, b).
+#[inline(always)]
+fn backward_lanes(
+    sp: &Packed,
+    st: &mut PixelState,
+    r: usize,
+    k: u32,
+    dy: f32,
+    (dxs, gauss): ([f32; LANES], [f32; LANES]),
+    acc: &mut [F8; 9],
+) {
+    let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
+    let [a, b, c] = sp.conic.map(F8::splat);
+    let (dx, dy, g) = (F8(dxs), F8::splat(dy), F8(gauss));
+    let opacity = F8::splat(sp.opacity);
+    let blended = zero.lt(g) & M8::below(k, st.contributors[r]);
+    let raw_alpha = opacity * g;
+    let unclamped = raw_alpha.lt(F8::splat(ALPHA_MAX));
+    let alpha = raw_alpha.select(unclamped, F8::splat(ALPHA_MAX));
+    let inv_one_minus = one / (one - alpha);
+    // Transmittance in front of this splat.
+    let t_behind = F8(st.transmittance[r]);
+    let t = (t_behind * inv_one_minus).select(blended, t_behind);
+    st.transmittance[r] = t.0;
+    let la = F8(st.last_alpha[r]);
+    let weight = (alpha * t).select(blended, zero);
+    let mut d_alpha = zero;
+    for ch in 0..3 {
+        // Colour of everything behind this splat, as seen through it.
+        let accum = F8(st.accum[ch][r]);
+        let behind = (la * F8(st.last_color[ch][r]) + (one - la) * accum).select(blended, accum);
+        st.accum[ch][r] = behind.0;
+        let color = F8::splat(sp.color[ch]);
+        st.last_color[ch][r] = color.select(blended, F8(st.last_color[ch][r])).0;
+        let d_pixel = F8(st.d_pixel[ch][r]);
+        d_alpha = d_alpha + (color - behind) * d_pixel;
+        acc[6 + ch] = acc[6 + ch] + weight * d_pixel;
+    }
+    st.last_alpha[r] = alpha.select(blended, la).0;
+    // The background is seen through every splat: final_T = t·(1 − alpha)·(rest).
+    let d_alpha = d_alpha * t - F8(st.final_t[r]) * inv_one_minus * F8(st.bg_dot[r]);
+    // A clamped alpha passes no gradient to opacity or shape.
+    let d_alpha = d_alpha.select(blended & unclamped, zero);
+    let d_power = opacity * g * d_alpha;
+    let half = F8::splat(0.5);
+    acc[0] = acc[0] + d_power * (a * dx + b * dy);
+    acc[1] = acc[1] + d_power * (c * dy + b * dx);
+    acc[2] = acc[2] - half * dx * dx * d_power;
+    acc[3] = acc[3] - dx * dy * d_power;
+    acc[4] = acc[4] - half * dy * dy * d_power;
+    acc[5] = acc[5] + g * d_alpha;
 }

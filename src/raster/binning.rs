@@ -15,7 +15,7 @@ pub struct TileBins {
     splat_offsets: Vec<u32>,
     /// Entries sorted by tile then depth: the splat index of each.
     pub sorted_splats: Vec<u32>,
-    /// Sort key of each sorted entry: depth bits (high) and splat index (low).
+    /// Splats that cover a tile, sorted by key: depth bits (high) and splat index (low).
     sorted_keys: Vec<u64>,
     /// Position in the sorted order of each unsorted entry (splat-major order).
     pub sorted_position: Vec<u32>,
@@ -30,14 +30,25 @@ impl TileBins {
         self.sorted_splats.len()
     }
 
-    /// Prefix sums of entries per splat (splat-major entry order), one more than splats.
-    pub fn splat_offsets(&self) -> &[u32] {
-        &self.splat_offsets
+    /// Heap bytes held by the bins.
+    pub fn heap_bytes(&self) -> usize {
+        4 * (self.rects.capacity() * 4
+            + self.splat_offsets.capacity()
+            + self.sorted_splats.capacity()
+            + self.sorted_position.capacity()
+            + self.tile_offsets.capacity()
+            + self.tile_fill.capacity())
+            + 8 * self.sorted_keys.capacity()
     }
 
     /// Sorted entries of tile `t`.
     pub fn tile_range(&self, t: usize) -> std::ops::Range<usize> {
         self.tile_offsets[t] as usize..self.tile_offsets[t + 1] as usize
+    }
+
+    /// Prefix sums of entries per splat (splat-major entry order), one more than splats.
+    pub fn splat_offsets(&self) -> &[u32] {
+        &self.splat_offsets
     }
 
     /// Entries (unsorted, splat-major) owned by splat `s`.
@@ -46,6 +57,10 @@ impl TileBins {
     }
 
     /// Bins `splats` for an image of `width × height` pixels.
+    ///
+    /// Cost is linear in the (tile, splat) pairs plus one sort of the visible splats by depth:
+    /// entries are scattered into their tiles in depth order (a stable counting sort by tile),
+    /// so every tile's list comes out depth-sorted without sorting each tile.
     pub fn build(&mut self, splats: &[Splat], width: usize, height: usize) {
         self.tiles_x = width.div_ceil(TILE);
         self.tiles_y = height.div_ceil(TILE);
@@ -57,23 +72,20 @@ impl TileBins {
             .map(|s| tile_rect(s, tiles_x, tiles_y))
             .collect_into_vec(&mut self.rects);
 
+        // Entries per splat (splat-major order) and per tile.
         self.splat_offsets.clear();
         self.splat_offsets.reserve(splats.len() + 1);
         self.splat_offsets.push(0);
+        self.tile_fill.clear();
+        self.tile_fill.resize(tile_count + 1, 0);
         let mut total = 0u32;
         for r in &self.rects {
             total += (r[2] - r[0]) * (r[3] - r[1]);
             self.splat_offsets.push(total);
-        }
-        let total = total as usize;
-
-        // Counting sort of entries by tile; within a tile, entries stay in splat order.
-        self.tile_fill.clear();
-        self.tile_fill.resize(tile_count + 1, 0);
-        for r in &self.rects {
             for ty in r[1]..r[3] {
+                let row = ty as usize * self.tiles_x + 1;
                 for tx in r[0]..r[2] {
-                    self.tile_fill[(ty as usize) * self.tiles_x + tx as usize + 1] += 1;
+                    self.tile_fill[row + tx as usize] += 1;
                 }
             }
         }
@@ -83,42 +95,36 @@ impl TileBins {
         self.tile_offsets.clear();
         self.tile_offsets.extend_from_slice(&self.tile_fill);
 
+        // Splats that cover a tile, by depth; the splat index breaks ties. Depths are positive
+        // (beyond the near plane), so their bits order like the values.
+        self.sorted_keys.clear();
+        self.sorted_keys.extend(
+            self.rects
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| r[2] > r[0])
+                .map(|(s, _)| ((splats[s].depth.to_bits() as u64) << 32) | s as u64),
+        );
+        self.sorted_keys.par_sort_unstable();
+
+        let total = total as usize;
         self.sorted_splats.resize(total, 0);
-        self.sorted_keys.resize(total, 0);
         self.sorted_position.resize(total, 0);
-        for (s, r) in self.rects.iter().enumerate() {
+        for &key in &self.sorted_keys {
+            let s = key as u32;
+            let r = self.rects[s as usize];
+            let mut entry = self.splat_offsets[s as usize] as usize;
             for ty in r[1]..r[3] {
+                let row = ty as usize * self.tiles_x;
                 for tx in r[0]..r[2] {
-                    let t = (ty as usize) * self.tiles_x + tx as usize;
+                    let t = row + tx as usize;
                     let k = self.tile_fill[t] as usize;
                     self.tile_fill[t] += 1;
-                    // Depths are positive (beyond the near plane), so their bits order like the values.
-                    self.sorted_keys[k] = ((splats[s].depth.to_bits() as u64) << 32) | s as u64;
+                    self.sorted_splats[k] = s;
+                    self.sorted_position[entry] = k as u32;
+                    entry += 1;
                 }
             }
-        }
-
-        // Depth sort inside each tile; the splat index in the key's low bits breaks ties.
-        let mut tiles = split_by_offsets(&mut self.sorted_keys, &self.tile_offsets);
-        tiles.par_iter_mut().for_each(|keys| keys.sort_unstable());
-        drop(tiles);
-        self.sorted_splats
-            .par_iter_mut()
-            .zip(self.sorted_keys.par_iter())
-            .for_each(|(s, k)| *s = *k as u32);
-        self.rebuild_positions();
-    }
-
-    fn rebuild_positions(&mut self) {
-        // Entries of one splat appear in increasing tile order, one per tile; walking tiles in
-        // order therefore visits each splat's entries in their unsorted order.
-        self.tile_fill.clear();
-        self.tile_fill
-            .extend_from_slice(&self.splat_offsets[..self.splat_offsets.len() - 1]);
-        for k in 0..self.sorted_splats.len() {
-            let s = self.sorted_splats[k] as usize;
-            self.sorted_position[self.tile_fill[s] as usize] = k as u32;
-            self.tile_fill[s] += 1;
         }
     }
 }
@@ -139,13 +145,27 @@ fn tile_rect(s: &Splat, tiles_x: f32, tiles_y: f32) -> [u32; 4] {
     [x0 as u32, y0 as u32, x1 as u32, y1 as u32]
 }
 
-/// Splits `data` into consecutive mutable slices at `offsets` (len = pieces + 1).
-pub(super) fn split_by_offsets<'a, T>(mut data: &'a mut [T], offsets: &[u32]) -> Vec<&'a mut [T]> {
-    let mut pieces = Vec::with_capacity(offsets.len().saturating_sub(1));
-    for w in offsets.windows(2) {
-        let (head, tail) = data.split_at_mut((w[1] - w[0]) as usize);
-        pieces.push(head);
-        data = tail;
+/// Calls `f(tile, piece)` in parallel for every tile, where `piece` is the tile's part of
+/// `data` (tile t owns `offsets[t]..offsets[t + 1]`, offsets starting at 0). Splits the range in
+/// halves with `rayon::join`, so nothing is allocated and idle threads steal the larger halves.
+pub(super) fn for_each_tile_mut<T: Send>(
+    data: &mut [T],
+    offsets: &[u32],
+    tiles: std::ops::Range<usize>,
+    f: &(impl Fn(usize, &mut [T]) + Sync),
+) {
+    if tiles.len() == 1 {
+        f(tiles.start, data);
+        return;
     }
-    pieces
+    if tiles.is_empty() {
+        return;
+    }
+    let mid = tiles.start + tiles.len() / 2;
+    let split = (offsets[mid] - offsets[tiles.start]) as usize;
+    let (left, right) = data.split_at_mut(split);
+    rayon::join(
+        || for_each_tile_mut(left, offsets, tiles.start..mid, f),
+        || for_each_tile_mut(right, offsets, mid..tiles.end, f),
+    );
 }

@@ -3,8 +3,8 @@
 use rayon::prelude::*;
 
 use super::{
-    ALPHA_MAX, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_pixels,
-    falloff_at, min_power, untile,
+    ALPHA_MAX, GROUPS, LANES, Packed, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS,
+    TRANSMITTANCE_MIN, box_in_tile, falloff_lanes, group_lanes, pick, row_columns, simd_kernel,
 };
 
 /// Gaussian falloff exponent at offset (dx, dy) from the centre.
@@ -23,27 +23,50 @@ impl Rasterizer {
         background: [f32; 3],
         out: &mut RenderOutput,
     ) {
+        self.bin(splats, width, height);
+        self.blend(width, height, background, out);
+    }
+
+    /// Bins `splats` into depth-sorted tile lists (the first half of [`Rasterizer::forward`]).
+    pub fn bin(&mut self, splats: &[Splat], width: usize, height: usize) {
+        splats
+            .par_iter()
+            .map(Packed::new)
+            .collect_into_vec(&mut self.packed);
         self.bins.build(splats, width, height);
+    }
+
+    /// Blends the splats binned by the last [`Rasterizer::bin`] call (the second half of
+    /// [`Rasterizer::forward`]).
+    pub fn blend(
+        &mut self,
+        width: usize,
+        height: usize,
+        background: [f32; 3],
+        out: &mut RenderOutput,
+    ) {
         self.background = background;
         let tile_count = self.bins.tiles_x * self.bins.tiles_y;
         let pixel_slots = tile_count * TILE_PIXELS;
         self.final_transmittance.resize(pixel_slots, 1.0);
         self.contributors.resize(pixel_slots, 0);
-        self.tile_color.resize(pixel_slots, [0.0; 3]);
+        self.tile_color.resize(3 * pixel_slots, 0.0);
 
         let tiles_x = self.bins.tiles_x;
         let bins = &self.bins;
+        let packed = &self.packed;
         self.tile_color
-            .par_chunks_mut(TILE_PIXELS)
+            .par_chunks_mut(3 * TILE_PIXELS)
             .zip(self.final_transmittance.par_chunks_mut(TILE_PIXELS))
             .zip(self.contributors.par_chunks_mut(TILE_PIXELS))
             .enumerate()
+            .with_max_len(1)
             .for_each(|(tile, ((color, transmittance), contributors))| {
                 let entries = &bins.sorted_splats[bins.tile_range(tile)];
                 let origin = ((tile % tiles_x) * TILE, (tile / tiles_x) * TILE);
                 blend_tile(
                     entries,
-                    splats,
+                    packed,
                     origin,
                     (width, height),
                     background,
@@ -52,83 +75,113 @@ impl Rasterizer {
                     contributors,
                 );
             });
+        self.write_output(width, height, out);
+    }
 
+    /// Reorders the tile-major colour and transmittance into the row-major image and alpha.
+    fn write_output(&self, width: usize, height: usize, out: &mut RenderOutput) {
         out.image.width = width;
         out.image.height = height;
-        untile(
-            &self.tile_color,
-            tiles_x,
-            width,
-            height,
-            &mut out.image.data,
-            [0.0; 3],
-        );
-        untile(
-            &self.final_transmittance,
-            tiles_x,
-            width,
-            height,
-            &mut out.alpha,
-            1.0,
-        );
-        out.alpha.par_iter_mut().for_each(|a| *a = 1.0 - *a);
+        out.image.data.resize(width * height, [0.0; 3]);
+        out.alpha.resize(width * height, 0.0);
+        let tiles_x = self.bins.tiles_x;
+        out.image
+            .data
+            .par_chunks_mut(width.max(1))
+            .zip(out.alpha.par_chunks_mut(width.max(1)))
+            .enumerate()
+            .for_each(|(y, (row, alpha))| {
+                let (ty, ly) = (y / TILE, y % TILE);
+                for (x, (value, a)) in row.iter_mut().zip(alpha).enumerate() {
+                    let tile = ty * tiles_x + x / TILE;
+                    let p = ly * TILE + x % TILE;
+                    let colour = &self.tile_color[3 * tile * TILE_PIXELS..];
+                    *value = [0, 1, 2].map(|c| colour[c * TILE_PIXELS + p]);
+                    *a = 1.0 - self.final_transmittance[tile * TILE_PIXELS + p];
+                }
+            });
     }
 }
 
-/// Blends one tile. Pixels outside the image keep transmittance 1 and no contributors.
-#[allow(clippy::too_many_arguments)]
-fn blend_tile(
-    entries: &[u32],
-    splats: &[Splat],
-    origin: (usize, usize),
-    size: (usize, usize),
-    background: [f32; 3],
-    color: &mut [[f32; 3]],
-    transmittance: &mut [f32],
-    contributors: &mut [u32],
-) {
-    let mut active = [false; TILE_PIXELS];
-    let mut remaining = 0;
-    for (p, a) in active.iter_mut().enumerate() {
-        *a = origin.0 + p % TILE < size.0 && origin.1 + p / TILE < size.1;
-        remaining += *a as usize;
-    }
-    color.fill([0.0; 3]);
-    transmittance.fill(1.0);
-    contributors.fill(0);
+simd_kernel! {
+    /// Blends one tile. Pixels outside the image keep transmittance 1 and no contributors.
+    /// `color` holds the tile's 256 red, then green, then blue values.
+    fn blend_tile(
+        entries: &[u32],
+        splats: &[Packed],
+        origin: (usize, usize),
+        size: (usize, usize),
+        background: [f32; 3],
+        color: &mut [f32],
+        transmittance: &mut [f32],
+        contributors: &mut [u32],
+    ) {
+        // Per-pixel state in lane groups: group r holds pixels r·8 .. r·8 + 8 of the tile.
+        let mut t = [[1f32; LANES]; GROUPS];
+        let mut rgb = [[[0f32; LANES]; GROUPS]; 3];
+        let mut last = [[0u32; LANES]; GROUPS];
+        // 1 until the pixel stops; `live_count` per group lets finished groups be skipped.
+        let mut live = [[0f32; LANES]; GROUPS];
+        let mut live_count = [0u32; GROUPS];
+        for (r, group) in live.iter_mut().enumerate() {
+            for (x, l) in group.iter_mut().enumerate() {
+                let p = r * LANES + x;
+                let inside = origin.0 + p % TILE < size.0 && origin.1 + p / TILE < size.1;
+                *l = inside as u32 as f32;
+                live_count[r] += inside as u32;
+            }
+        }
+        let mut remaining: u32 = live_count.iter().sum();
 
-    for (k, &s) in entries.iter().enumerate() {
-        if remaining == 0 {
-            break;
+        for (k, &s) in entries.iter().enumerate() {
+            if remaining == 0 {
+                break;
+            }
+            let sp = &splats[s as usize];
+            let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
+            let contributor = k as u32 + 1;
+            for y in y0..y1 {
+                let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
+                let (cx0, cx1) = row_columns(sp, origin.0, dy, (x0, x1));
+                for h in cx0 / LANES..cx1.div_ceil(LANES) {
+                    let r = y * (TILE / LANES) + h;
+                    if live_count[r] == 0 {
+                        continue;
+                    }
+                    let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
+                    let (_, gauss) = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
+                    let (t, live, last) = (&mut t[r], &mut live[r], &mut last[r]);
+                    let mut stopped = 0u32;
+                    for x in 0..LANES {
+                        let raw = sp.opacity * gauss[x];
+                        let alpha = pick(raw < ALPHA_MAX, raw, ALPHA_MAX);
+                        let drawn = (gauss[x] > 0.0) & (live[x] > 0.0);
+                        let next = t[x] * (1.0 - alpha);
+                        let stop = drawn & (next < TRANSMITTANCE_MIN);
+                        let blend = drawn & !stop;
+                        let w = pick(blend, alpha * t[x], 0.0);
+                        for c in 0..3 {
+                            rgb[c][r][x] += sp.color[c] * w;
+                        }
+                        t[x] = pick(blend, next, t[x]);
+                        last[x] = if blend { contributor } else { last[x] };
+                        live[x] = pick(stop, 0.0, live[x]);
+                        stopped += stop as u32;
+                    }
+                    live_count[r] -= stopped;
+                    remaining -= stopped;
+                }
+            }
         }
-        let sp = &splats[s as usize];
-        let min_power = min_power(sp);
-        for p in box_pixels(sp, origin) {
-            if !active[p] {
-                continue;
+        for r in 0..GROUPS {
+            for x in 0..LANES {
+                let p = r * LANES + x;
+                for c in 0..3 {
+                    color[c * TILE_PIXELS + p] = rgb[c][r][x] + t[r][x] * background[c];
+                }
+                transmittance[p] = t[r][x];
+                contributors[p] = last[r][x];
             }
-            let Some((_, _, gauss)) = falloff_at(sp, origin, p, min_power) else {
-                continue;
-            };
-            let alpha = (sp.opacity * gauss).min(ALPHA_MAX);
-            let t = transmittance[p];
-            let next = t * (1.0 - alpha);
-            if next < TRANSMITTANCE_MIN {
-                active[p] = false;
-                remaining -= 1;
-                continue;
-            }
-            let w = alpha * t;
-            for c in 0..3 {
-                color[p][c] += sp.color[c] * w;
-            }
-            transmittance[p] = next;
-            contributors[p] = k as u32 + 1;
-        }
-    }
-    for p in 0..TILE_PIXELS {
-        for c in 0..3 {
-            color[p][c] += transmittance[p] * background[c];
         }
     }
 }

@@ -1,0 +1,87 @@
+//! CPU against GPU (wgpu) on the fixed benchmark scene (see `tadgs::bench`) at 100k Gaussians
+//! and 640×360: a whole training iteration, and blending alone (forward + backward) on the CPU
+//! rasterizer and on each GPU backward path. GPU benches are skipped with a message where no
+//! adapter opens. On Mesa's lavapipe (a CPU driver) this checks that the GPU path runs, not
+//! its speed.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use tadgs::bench::benchmark_world;
+use tadgs::gpu::{GpuError, GpuRasterizer};
+use tadgs::raster::{Rasterizer, RenderOutput};
+use tadgs::resources::{Backend, SplatBuffers};
+use tadgs::systems::{render_schedule, training_schedule};
+
+const N: usize = 100_000;
+const WIDTH: u32 = 640;
+const HEIGHT: u32 = 360;
+
+fn bench_iteration(c: &mut Criterion) {
+    let mut group = c.benchmark_group("train_iteration_640x360");
+    group.sample_size(10);
+    for name in ["cpu", "gpu"] {
+        let mut world = benchmark_world(N, WIDTH, HEIGHT, false);
+        if name == "gpu" {
+            match GpuRasterizer::new() {
+                Ok(gpu) => {
+                    eprintln!("GPU backend: {}", gpu.describe());
+                    world.insert_resource(gpu);
+                    world.insert_resource(Backend::Gpu);
+                }
+                Err(e) => {
+                    eprintln!("skipping the GPU backend: {e}");
+                    continue;
+                }
+            }
+        }
+        let mut schedule = training_schedule();
+        group.bench_function(format!("{N}_gaussians_{name}"), |b| {
+            b.iter(|| schedule.run(&mut world))
+        });
+    }
+    group.finish();
+}
+
+fn bench_blending(c: &mut Criterion) {
+    let mut world = benchmark_world(N, WIDTH, HEIGHT, false);
+    render_schedule().run(&mut world);
+    let splats = world.resource::<SplatBuffers>().splats.clone();
+    let (width, height) = (WIDTH as usize, HEIGHT as usize);
+    let d_color = vec![[1e-3f32, -2e-3, 5e-4]; width * height];
+    let mut out = RenderOutput::default();
+    let mut grads = Vec::new();
+    let mut group = c.benchmark_group("blend_forward_backward_640x360");
+    group.sample_size(10);
+    let mut cpu = Rasterizer::new();
+    group.bench_function(format!("{N}_gaussians_cpu"), |b| {
+        b.iter(|| {
+            cpu.forward(&splats, width, height, [0.0; 3], &mut out);
+            cpu.backward(&splats, &d_color, width, &mut grads);
+        })
+    });
+    let open: [(&str, fn() -> Result<GpuRasterizer, GpuError>); 2] = [
+        ("gpu_default", GpuRasterizer::new),
+        ("gpu_tile_sums", GpuRasterizer::portable),
+    ];
+    for (name, open) in open {
+        let mut gpu = match open() {
+            Ok(gpu) => gpu,
+            Err(e) => {
+                eprintln!("skipping {name}: {e}");
+                continue;
+            }
+        };
+        eprintln!("{name}: {}", gpu.describe());
+        group.bench_function(format!("{N}_gaussians_{name}"), |b| {
+            b.iter(|| {
+                gpu.forward(&splats, width, height, [0.0; 3], &mut out)
+                    .expect("GPU forward");
+                gpu.backward(&splats, &d_color, &mut grads)
+                    .expect("GPU backward");
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_iteration, bench_blending);
+criterion_main!(benches);

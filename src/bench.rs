@@ -1,0 +1,386 @@
+//! The fixed benchmark scene of the performance work and a per-stage timer, shared by the
+//! criterion benches (`benches/`) and `tadgs bench`.
+//!
+//! Scene: N Gaussians from a seeded RNG, means x ~ U(−2, 2), y ~ U(−1.2, 1.2), z ~ U(2, 6);
+//! normalised standard-normal quaternions; scales exp(U(−4.5, −2.5)) per axis; opacity
+//! U(0.1, 0.9); colour U(0, 1) (SH degree 0). Camera: identity world-to-camera,
+//! fx = fy = 0.8·W, principal point at the image centre, black background.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use bevy_ecs::prelude::*;
+use glam::Mat4;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+
+use crate::components::*;
+use crate::data::{Camera, Dataset};
+use crate::io::image::Image;
+use crate::model::deform::{FOURIER_TERMS, logit};
+use crate::model::sh::rgb_to_sh_dc;
+use crate::resources::{SplatBuffers, ViewSample};
+use crate::scene::{DataSource, SceneConfig};
+use crate::systems::{adam, backward, deform, loss, render_schedule, sample_view, splat};
+use crate::systems::{time_warp, training_schedule};
+use crate::train::insert_resources;
+
+/// The benchmark camera: identity pose, fx = fy = 0.8·W, centred principal point.
+pub fn benchmark_camera(width: u32, height: u32) -> Camera {
+    let f = 0.8 * width as f32;
+    Camera {
+        width,
+        height,
+        fx: f,
+        fy: f,
+        cx: 0.5 * width as f32,
+        cy: 0.5 * height as f32,
+        world_to_camera: Mat4::IDENTITY,
+    }
+}
+
+/// The benchmark population of `n` Gaussians. Static ones are centred at t = 0 with a lifespan
+/// long enough to be drawn at any time; with `motion`, the Fourier coefficients, phases,
+/// temporal centres and widths are random too (for the deformation benches).
+pub fn benchmark_gaussians(n: usize, seed: u64, motion: bool) -> Vec<GaussianParams> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| {
+            let mut q = [0f32; 4];
+            q.iter_mut().for_each(|c| *c = rng.sample(StandardNormal));
+            let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
+            let mut color = Color::default();
+            color.sh[0] = [rng.random::<f32>(), rng.random(), rng.random()].map(rgb_to_sh_dc);
+            let mut params = GaussianParams {
+                position: Position {
+                    mean: [
+                        rng.random_range(-2.0..2.0),
+                        rng.random_range(-1.2..1.2),
+                        rng.random_range(2.0..6.0),
+                    ],
+                },
+                temporal: Temporal {
+                    center: 0.0,
+                    scale: [-10.0, -10.0],
+                },
+                opacity: Opacity {
+                    logit: logit(rng.random_range(0.1..0.9)),
+                },
+                rotation: Rotation {
+                    c0: q.map(|c| c / norm),
+                    c1: [0.0; 4],
+                },
+                scale: Scale {
+                    d0: [(); 3].map(|_| rng.random_range(-4.5..-2.5)),
+                    d1: [0.0; 3],
+                },
+                color,
+                ..Default::default()
+            };
+            if motion {
+                let mut small = || [(); 3].map(|_| rng.random_range(-0.05..0.05));
+                params.fourier = Fourier {
+                    cos: [(); FOURIER_TERMS].map(|_| small()),
+                    sin: [(); FOURIER_TERMS].map(|_| small()),
+                    phase: [(); FOURIER_TERMS].map(|_| rng.random_range(0.0..6.3)),
+                };
+                // log ψ in [0, 4]: lifespans from most of the sequence down to a few frames.
+                let log_psi = rng.random_range(0.0..4.0);
+                params.temporal = Temporal {
+                    center: rng.random_range(0.0..1.0),
+                    scale: [log_psi, log_psi],
+                };
+                params.rotation.c1 = [(); 4].map(|_| rng.random_range(-0.1..0.1));
+            }
+            params
+        })
+        .collect()
+}
+
+/// A training world on the benchmark scene: `n` Gaussians, one `width × height` view of a fixed
+/// target image, SH degree 0, no densification.
+pub fn benchmark_world(n: usize, width: u32, height: u32, motion: bool) -> World {
+    let camera = benchmark_camera(width, height);
+    let (w, h) = (width as usize, height as usize);
+    let target = Image {
+        width: w,
+        height: h,
+        data: (0..w * h)
+            .map(|i| [((i % 97) as f32) / 97.0, 0.5, 0.3])
+            .collect(),
+    };
+    let dataset = Dataset::single_camera(camera, 1, &target);
+    let mut config = SceneConfig::new(
+        "bench",
+        DataSource::Synthetic(crate::data::synthetic::demo_scene()),
+    );
+    config.model.sh_degree = 0;
+    config.densify.until_iter = 0;
+    config.densify.opacity_reset_interval = 0;
+    let mut world = World::new();
+    insert_resources(&mut world, &config, Arc::new(dataset)).expect("the CPU backend opens");
+    world.spawn_batch(
+        benchmark_gaussians(n, 42, motion)
+            .into_iter()
+            .map(GaussianParams::bundle)
+            .collect::<Vec<_>>(),
+    );
+    world
+}
+
+/// Median times of one stage, in milliseconds.
+#[derive(Clone, Debug)]
+pub struct StageTime {
+    pub stage: &'static str,
+    /// Wall-clock time.
+    pub ms: f64,
+    /// CPU time of the whole process (all threads): the work done, which stays meaningful on a
+    /// machine shared with other jobs, where the wall time also counts waiting.
+    pub cpu_ms: f64,
+}
+
+/// What [`run`] measured.
+#[derive(Clone, Debug)]
+pub struct BenchReport {
+    pub gaussians: usize,
+    pub width: u32,
+    pub height: u32,
+    /// Splats drawn (projected inside the image).
+    pub visible: usize,
+    /// (tile, splat) pairs.
+    pub intersections: usize,
+    pub stages: Vec<StageTime>,
+    /// Bytes per Gaussian of its ECS components (parameters, gradients, Adam moments, state).
+    pub component_bytes: usize,
+    /// Heap bytes per Gaussian of the per-iteration scratch buffers after warm-up.
+    pub scratch_bytes: f64,
+}
+
+/// Heap bytes held by the splatting stage's buffers.
+fn scratch_bytes(b: &SplatBuffers) -> usize {
+    fn bytes<T>(v: &Vec<T>) -> usize {
+        v.capacity() * std::mem::size_of::<T>()
+    }
+    bytes(&b.deformed)
+        + bytes(&b.splats)
+        + bytes(&b.splat_grads)
+        + bytes(&b.deformed_grads)
+        + bytes(&b.ndc_grad_norm)
+        + bytes(&b.render.image.data)
+        + bytes(&b.render.alpha)
+        + b.rasterizer.heap_bytes()
+}
+
+/// CPU time used so far by every thread of this process, in milliseconds (0 where unknown).
+fn process_cpu_ms() -> f64 {
+    #[cfg(unix)]
+    {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `ts` is a valid timespec for clock_gettime to write.
+        if unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) } == 0 {
+            return ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6;
+        }
+    }
+    0.0
+}
+
+/// (wall, CPU) milliseconds of `f`.
+fn time_ms(f: impl FnOnce()) -> (f64, f64) {
+    let (start, cpu) = (Instant::now(), process_cpu_ms());
+    f();
+    (start.elapsed().as_secs_f64() * 1e3, process_cpu_ms() - cpu)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Times every stage of a training iteration on the benchmark scene (`repeats` runs each, the
+/// median reported), then a whole iteration and a render at a new time.
+pub fn run(n: usize, width: u32, height: u32, repeats: usize) -> BenchReport {
+    let repeats = repeats.max(1);
+    let mut world = benchmark_world(n, width, height, false);
+    let mut train = training_schedule();
+    let mut adam_only = Schedule::default();
+    adam_only.add_systems(adam::adam_systems());
+    // Warm-up: buffers reach their size.
+    train.run(&mut world);
+    train.run(&mut world);
+
+    let mut samples: Vec<(&'static str, Vec<f64>, Vec<f64>)> = Vec::new();
+    let mut record = |stage: &'static str, (ms, cpu): (f64, f64)| match samples
+        .iter_mut()
+        .find(|s| s.0 == stage)
+    {
+        Some(s) => {
+            s.1.push(ms);
+            s.2.push(cpu);
+        }
+        None => samples.push((stage, vec![ms], vec![cpu])),
+    };
+    for _ in 0..repeats {
+        let mut timed =
+            |world: &mut World, stage, f: fn(&mut World)| record(stage, time_ms(|| f(world)));
+        timed(&mut world, "sample view", |w| {
+            w.run_system_cached(sample_view::advance_iteration).unwrap();
+            w.run_system_cached(sample_view::sample_view).unwrap();
+        });
+        timed(&mut world, "time warp", |w| {
+            w.run_system_cached(time_warp::time_warp).unwrap()
+        });
+        timed(&mut world, "deform", |w| {
+            w.run_system_cached(deform::deform).unwrap()
+        });
+        timed(&mut world, "splat (project + bin + blend)", |w| {
+            w.run_system_cached(splat::splat).unwrap()
+        });
+        timed(&mut world, "loss (L1 + D-SSIM)", |w| {
+            w.run_system_cached(loss::loss).unwrap()
+        });
+        timed(&mut world, "backward (raster + projection)", |w| {
+            w.run_system_cached(backward::backward_splats).unwrap()
+        });
+        timed(&mut world, "backward (deformation)", |w| {
+            w.run_system_cached(backward::backward_parameters).unwrap()
+        });
+        record("adam", time_ms(|| adam_only.run(&mut world)));
+        // The splatting stage split into its parts, re-run on the buffers it just used.
+        let camera = world.resource::<ViewSample>().camera;
+        let (w, h) = (width as usize, height as usize);
+        let mut buffers = world.resource_mut::<SplatBuffers>();
+        let b = &mut *buffers;
+        record(
+            "  project",
+            time_ms(|| splat::project_all(&b.deformed, &camera, 0.01, &mut b.splats)),
+        );
+        record(
+            "  bin + depth sort",
+            time_ms(|| b.rasterizer.bin(&b.splats, w, h)),
+        );
+        record(
+            "  blend",
+            time_ms(|| b.rasterizer.blend(w, h, [0.0; 3], &mut b.render)),
+        );
+        let d_color =
+            std::mem::take(&mut world.resource_mut::<crate::resources::LossImage>().d_color);
+        let mut buffers = world.resource_mut::<SplatBuffers>();
+        let b = &mut *buffers;
+        record(
+            "  raster backward",
+            time_ms(|| {
+                b.rasterizer
+                    .backward(&b.splats, &d_color, w, &mut b.splat_grads)
+            }),
+        );
+        world.resource_mut::<crate::resources::LossImage>().d_color = d_color;
+    }
+    for _ in 0..repeats {
+        record("training iteration", time_ms(|| train.run(&mut world)));
+    }
+    let mut render = render_schedule();
+    render.run(&mut world);
+    for r in 0..repeats {
+        world.resource_mut::<ViewSample>().time = 0.1 + 0.8 * r as f32 / repeats as f32;
+        record("render at a new time", time_ms(|| render.run(&mut world)));
+    }
+
+    let buffers = world.resource::<SplatBuffers>();
+    let visible = buffers.splats.iter().filter(|s| s.visible).count();
+    let scratch = scratch_bytes(buffers);
+    BenchReport {
+        gaussians: n,
+        width,
+        height,
+        visible,
+        intersections: buffers.rasterizer.intersections(),
+        stages: samples
+            .into_iter()
+            .map(|(stage, wall, cpu)| StageTime {
+                stage,
+                ms: median(wall),
+                cpu_ms: median(cpu),
+            })
+            .collect(),
+        component_bytes: std::mem::size_of::<GaussianBundle>(),
+        scratch_bytes: scratch as f64 / n as f64,
+    }
+}
+
+impl BenchReport {
+    /// The report as a plain-text table.
+    pub fn table(&self) -> String {
+        let pixels = self.width as usize * self.height as usize;
+        let mut out = format!(
+            "{:<32} {:>10} {:>10} {:>10} {:>10}\n",
+            "stage", "ms", "CPU ms", "Gaussians", "pixels"
+        );
+        for s in &self.stages {
+            out += &format!(
+                "{:<32} {:>10.2} {:>10.2} {:>10} {:>10}\n",
+                s.stage, s.ms, s.cpu_ms, self.gaussians, pixels
+            );
+        }
+        out += &format!(
+            "\n{} × {}, {} Gaussians ({} visible), {} tile-splat pairs\n",
+            self.width, self.height, self.gaussians, self.visible, self.intersections
+        );
+        out += &format!(
+            "memory per Gaussian: {} B of components (parameters, gradients, Adam moments), \
+             {:.0} B of per-iteration buffers, {:.0} B in all\n",
+            self.component_bytes,
+            self.scratch_bytes,
+            self.component_bytes as f64 + self.scratch_bytes
+        );
+        out
+    }
+}
+
+/// Options of `tadgs bench`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct BenchArgs {
+    /// Number of Gaussians (one or more, comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "100000")]
+    pub gaussians: Vec<usize>,
+    /// Image sizes as WxH (one or more, comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "640x360")]
+    pub size: Vec<String>,
+    /// Runs per stage; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    pub repeats: usize,
+}
+
+/// `tadgs bench`: prints one table per (Gaussians, size) pair.
+pub fn cli(args: &BenchArgs) -> anyhow::Result<()> {
+    let sizes = args
+        .size
+        .iter()
+        .map(|s| {
+            let (w, h) = s
+                .split_once('x')
+                .ok_or_else(|| anyhow::anyhow!("--size {s}: expected WxH, e.g. 640x360"))?;
+            let parse = |v: &str| {
+                v.parse::<u32>()
+                    .ok()
+                    .filter(|&v| v > 0)
+                    .ok_or_else(|| anyhow::anyhow!("--size {s}: {v} is not a positive integer"))
+            };
+            Ok((parse(w)?, parse(h)?))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    println!(
+        "CPU: {} threads, SIMD level: {}",
+        rayon::current_num_threads(),
+        crate::raster::simd_level()
+    );
+    for &n in &args.gaussians {
+        for &(w, h) in &sizes {
+            println!("\n{}", run(n, w, h, args.repeats).table());
+        }
+    }
+    Ok(())
+}

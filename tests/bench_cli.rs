@@ -1,0 +1,52 @@
+//! `tadgs bench` prints one stage table per requested (Gaussians, size) pair, and rejects a
+//! malformed size with one clear line.
+
+use std::process::Command;
+
+#[test]
+fn bench_prints_a_table_per_configuration() {
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args([
+            "bench",
+            "--gaussians",
+            "500,1000",
+            "--size",
+            "64x36",
+            "--repeats",
+            "1",
+        ])
+        .output()
+        .expect("the tadgs binary runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    for stage in [
+        "deform",
+        "  blend",
+        "  raster backward",
+        "training iteration",
+        "render at a new time",
+    ] {
+        let rows = text
+            .lines()
+            .filter(|l| l.starts_with(&format!("{stage} ")))
+            .count();
+        assert_eq!(rows, 2, "stage {stage:?} in:\n{text}");
+    }
+    assert!(text.contains("64 × 36, 500 Gaussians") && text.contains("64 × 36, 1000 Gaussians"));
+    assert!(text.contains("memory per Gaussian"));
+}
+
+#[test]
+fn bench_rejects_a_bad_size() {
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args(["bench", "--size", "640by360"])
+        .output()
+        .expect("the tadgs binary runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--size 640by360: expected WxH"), "{err}");
+}
