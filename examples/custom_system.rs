@@ -10,17 +10,14 @@
 //! cargo run --release --example custom_system
 //! ```
 
-use std::path::Path;
-use std::sync::Arc;
+mod common;
 
 use anyhow::Result;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 use tadgs::components::{Fourier, Grad, Position};
-use tadgs::scene::{apply_overrides, load_scene};
 use tadgs::systems::describe::{SystemRow, describe, markdown_table};
 use tadgs::systems::{TrainSet, training_schedule};
-use tadgs::train::{insert_resources, spawn_initial_gaussians};
 
 /// Marks a Gaussian whose position and motion stay as they were.
 #[derive(Component, Clone, Copy)]
@@ -47,25 +44,12 @@ struct Outcome {
 }
 
 fn run(iterations: u32) -> Result<Outcome> {
-    let mut scene = load_scene(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/demo.ron"))?;
-    apply_overrides(
-        &mut scene,
-        &[
-            "data.frames=8",
-            "data.width=64",
-            "data.height=48",
-            "init.points_per_anchor=400",
-            "init.anchor_spacing=4",
-            // No densification here: a split moves the Gaussian it splits.
-            "densify.from_iter=100000",
-            "densify.until_iter=100000",
-            "densify.opacity_reset_interval=0",
-        ],
-    )?;
-    let dataset = Arc::new(tadgs::data::load(&scene.data)?);
-    let mut world = World::new();
-    insert_resources(&mut world, &scene, dataset)?;
-    spawn_initial_gaussians(&mut world, &scene)?;
+    let (_, mut world, _) = common::small_demo_world(&[
+        // No densification here: a split moves the Gaussian it splits.
+        "densify.from_iter=100000",
+        "densify.until_iter=100000",
+        "densify.opacity_reset_interval=0",
+    ])?;
 
     // Tag the Gaussians inside the box and remember every starting state.
     let start: Vec<(Entity, Position, Fourier)> = world

@@ -8,17 +8,14 @@
 //! cargo run --release --example step_schedule -- 200
 //! ```
 
-use std::path::Path;
-use std::sync::Arc;
+mod common;
 
 use anyhow::Result;
 use bevy_ecs::prelude::*;
 use tadgs::components::{Opacity, Position};
 use tadgs::model::deform::sigmoid;
 use tadgs::resources::TrainState;
-use tadgs::scene::{apply_overrides, load_scene};
 use tadgs::systems::training_schedule;
-use tadgs::train::{insert_resources, spawn_initial_gaussians};
 
 /// What a run of the schedule did.
 #[derive(Debug)]
@@ -33,26 +30,12 @@ struct Outcome {
 }
 
 fn run(iterations: u32) -> Result<Outcome> {
-    let mut scene = load_scene(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/demo.ron"))?;
-    apply_overrides(
-        &mut scene,
-        &[
-            "data.frames=8",
-            "data.width=64",
-            "data.height=48",
-            "init.points_per_anchor=400",
-            "init.anchor_spacing=4",
-            "densify.from_iter=50",
-            "densify.interval=50",
-            "densify.until_iter=150",
-            "densify.opacity_reset_interval=0",
-        ],
-    )?;
-    let dataset = Arc::new(tadgs::data::load(&scene.data)?);
-
-    let mut world = World::new();
-    insert_resources(&mut world, &scene, dataset)?;
-    let spawned = spawn_initial_gaussians(&mut world, &scene)?;
+    let (_, mut world, spawned) = common::small_demo_world(&[
+        "densify.from_iter=50",
+        "densify.interval=50",
+        "densify.until_iter=150",
+        "densify.opacity_reset_interval=0",
+    ])?;
     let mut schedule = training_schedule();
 
     let mut losses = Vec::with_capacity(iterations as usize);

@@ -4,25 +4,19 @@
 
 #![cfg(unix)]
 
+mod tiny;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use tadgs::io::checkpoint::Checkpoint;
-use tadgs::scene::{DataSource, load_scene};
+use tadgs::scene::load_scene;
 
 /// The demo at 64×48, 6 frames, 150 iterations with densification, a checkpoint every 3
 /// iterations (so kills often land inside a write).
 fn scene_file(dir: &Path) -> PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut config = load_scene(&root.join("scenes/demo.ron")).expect("demo scene loads");
-    let DataSource::Synthetic(synthetic) = &mut config.data else {
-        panic!("the demo is synthetic");
-    };
-    (synthetic.frames, synthetic.width, synthetic.height) = (6, 64, 48);
-    synthetic.supersample = 1;
-    config.init.points_per_anchor = 300;
-    config.init.anchor_spacing = 3;
+    let (mut config, _) = tiny::tiny_demo(64, 48, 300);
     config.train.iterations = 150;
     config.train.checkpoint_interval = 3;
     config.densify.from_iter = 20;
