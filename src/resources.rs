@@ -23,7 +23,7 @@ pub struct Settings {
     pub model: ModelConfig,
     /// The scene's densification options (VAD, TAT, thresholds, schedule).
     pub densify: DensifyConfig,
-    /// The scene's training options (iterations, learning rates, loss weights).
+    /// The scene's training options (iterations, learning rates, SSIM weight, background).
     pub train: TrainConfig,
     /// Number of frames T of the sequence.
     pub frame_count: usize,
