@@ -132,6 +132,7 @@ pub fn benchmark_world(n: usize, width: u32, height: u32, motion: bool) -> World
 /// Median times of one stage, in milliseconds.
 #[derive(Clone, Debug)]
 pub struct StageTime {
+    /// Stage name as printed (sub-stages of splatting are indented by two spaces).
     pub stage: &'static str,
     /// Wall-clock time.
     pub ms: f64,
@@ -143,13 +144,17 @@ pub struct StageTime {
 /// What [`run`] measured.
 #[derive(Clone, Debug)]
 pub struct BenchReport {
+    /// Number of Gaussians in the benchmark world.
     pub gaussians: usize,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// Splats drawn (projected inside the image).
     pub visible: usize,
     /// (tile, splat) pairs.
     pub intersections: usize,
+    /// Median times per stage, in the order measured.
     pub stages: Vec<StageTime>,
     /// Bytes per Gaussian of its ECS components (parameters, gradients, Adam moments, state).
     pub component_bytes: usize,

@@ -15,6 +15,7 @@ use crate::model::sh::SH_COEFFS;
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Position {
+    /// World-space position of the Gaussian at its temporal centre, before motion.
     pub mean: [f32; 3],
 }
 
@@ -22,8 +23,12 @@ pub struct Position {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Fourier {
+    /// M^c: `cos[f]` is the world-space amplitude of the cos(2π(f + 1)·Δt' + φ) term.
     pub cos: [[f32; 3]; FOURIER_TERMS],
+    /// M^s: `sin[f]` is the world-space amplitude of the sin(2π(f + 1)·Δt' + φ) term.
     pub sin: [[f32; 3]; FOURIER_TERMS],
+    /// Phases φ in radians: one per frequency, or only `phase[0]` when the phase is shared
+    /// (paper form, [`crate::scene::PhaseModel::PerGaussian`]).
     pub phase: [f32; FOURIER_TERMS],
 }
 
@@ -34,7 +39,10 @@ pub struct Fourier {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Temporal {
+    /// Temporal centre t_i in normalised time [0, 1] (an anchor frame); never optimised.
     pub center: f32,
+    /// Raw temporal scale: RBF: `[log ψ, unused]`; asymmetric: the left (Δt' < 0) and right
+    /// (Δt' ≥ 0) log-widths s, w = min(w_min·exp(s), 1.1).
     pub scale: [f32; 2],
 }
 
@@ -42,6 +50,7 @@ pub struct Temporal {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Opacity {
+    /// logit(σ^s); the spatial opacity is sigmoid(`logit`).
     pub logit: f32,
 }
 
@@ -49,7 +58,9 @@ pub struct Opacity {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Rotation {
+    /// Constant term c0, an unnormalised quaternion [w, x, y, z].
     pub c0: [f32; 4],
+    /// Linear term c1 (per unit of warped normalised time), [w, x, y, z].
     pub c1: [f32; 4],
 }
 
@@ -57,7 +68,10 @@ pub struct Rotation {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Scale {
+    /// Constant term d0: natural log of the per-axis standard deviation (world units).
     pub d0: [f32; 3],
+    /// Linear term d1 per unit of warped normalised time; ignored unless
+    /// `model.scale_motion` is on.
     pub d1: [f32; 3],
 }
 
@@ -65,6 +79,8 @@ pub struct Scale {
 #[derive(Component, Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Color {
+    /// `sh[k][c]`: coefficient k (band by band in the 3DGS basis order, k < (degree + 1)²) of
+    /// channel c (r, g, b); rgb = Σ basis·sh + 0.5, clamped ≥ 0.
     pub sh: [[f32; 3]; SH_COEFFS],
 }
 
@@ -94,7 +110,9 @@ pub struct GradAccum {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct WarpedTime {
+    /// Raw offset Δt = t − t_i in normalised time.
     pub dt: f32,
+    /// Warped offset Δt' = W(Δt) (equal to `dt` when TOW is off).
     pub dtw: f32,
 }
 
@@ -102,15 +120,20 @@ pub struct WarpedTime {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Deformed {
+    /// World-space mean μ(t), Fourier motion included.
     pub mean: [f32; 3],
+    /// Unit quaternion q(t), [w, x, y, z].
     pub rotation: [f32; 4],
+    /// Per-axis standard deviations s(t) in world units (already exponentiated).
     pub scale: [f32; 3],
     /// σ(t), including the spatial opacity.
     pub opacity: f32,
+    /// Linear rgb seen from the sampled camera (SH + 0.5, clamped ≥ 0).
     pub color: [f32; 3],
 }
 
 impl Deformed {
+    /// [`Self::mean`] as a [`Vec3`].
     pub fn mean(&self) -> Vec3 {
         Vec3::from_array(self.mean)
     }
@@ -125,10 +148,12 @@ pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync +
     /// Human-readable group name (for logs and NaN reports).
     const NAME: &'static str;
 
+    /// The component's fields as one flat slice of `f32`, in declaration order.
     fn values(&self) -> &[f32] {
         bytemuck::cast_slice(std::slice::from_ref(self))
     }
 
+    /// Mutable [`Param::values`].
     fn values_mut(&mut self) -> &mut [f32] {
         bytemuck::cast_slice_mut(std::slice::from_mut(self))
     }
@@ -160,7 +185,9 @@ pub struct Grad<P: Param>(pub P);
 /// Adam first and second moments for parameter component `P`.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct Adam<P: Param> {
+    /// First moment (running mean of the gradient).
     pub m: P,
+    /// Second moment (running mean of the squared gradient).
     pub v: P,
 }
 
@@ -169,12 +196,19 @@ pub struct Adam<P: Param> {
 /// This is the one place that lists the components of a Gaussian.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GaussianParams {
+    /// Canonical mean.
     pub position: Position,
+    /// Fourier motion.
     pub fourier: Fourier,
+    /// Temporal centre and scale.
     pub temporal: Temporal,
+    /// Spatial opacity logit.
     pub opacity: Opacity,
+    /// Rotation polynomial.
     pub rotation: Rotation,
+    /// Log-scale polynomial.
     pub scale: Scale,
+    /// SH colour.
     pub color: Color,
 }
 

@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! # tadgs: dynamic (4D) Gaussian splatting with temporally aware densification
 //!
 //! A population of Gaussians is a set of bevy_ecs entities with plain-data components

@@ -19,8 +19,11 @@ use crate::scene::{
 /// Settings of a run, resolved from the scene file and the dataset.
 #[derive(Resource, Clone, Debug)]
 pub struct Settings {
+    /// The scene's deformation-model options.
     pub model: ModelConfig,
+    /// The scene's densification options (VAD, TAT, thresholds, schedule).
     pub densify: DensifyConfig,
+    /// The scene's training options (iterations, learning rates, SSIM weight, background).
     pub train: TrainConfig,
     /// Number of frames T of the sequence.
     pub frame_count: usize,
@@ -86,9 +89,13 @@ pub struct TrainState {
 /// What a densification step did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct DensifyReport {
+    /// Iteration at which the step ran (0: no step yet).
     pub iteration: u32,
+    /// Gaussians cloned (each adds one Gaussian).
     pub cloned: usize,
+    /// Gaussians split in two (each adds one Gaussian).
     pub split: usize,
+    /// Gaussians removed by pruning.
     pub pruned: usize,
 }
 
@@ -99,9 +106,11 @@ pub struct TrainingViews(pub Arc<Dataset>);
 /// The view of the current iteration.
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct ViewSample {
+    /// The camera to render from (OpenCV convention).
     pub camera: Camera,
     /// Index into the dataset's training views, when the view is one of them.
     pub view: Option<usize>,
+    /// Frame index in the sequence, from 0.
     pub frame: usize,
     /// Normalised time in [0, 1].
     pub time: f32,
@@ -111,7 +120,9 @@ pub struct ViewSample {
 /// epoch.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct ViewOrder {
+    /// The current epoch's permutation of the training-view indices.
     pub order: Vec<usize>,
+    /// Position in `order` of the next view to sample; a new epoch starts at the end.
     pub next: usize,
 }
 
@@ -120,6 +131,7 @@ pub struct ViewOrder {
 pub struct Rng(pub ChaCha8Rng);
 
 impl Rng {
+    /// A ChaCha8 generator seeded with `seed`.
     pub fn seeded(seed: u64) -> Self {
         Self(ChaCha8Rng::seed_from_u64(seed))
     }
@@ -160,6 +172,7 @@ pub struct NumericFault(pub Option<Fault>);
 /// Which backend runs the splatting stage.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Backend {
+    /// The tile rasterizer on the CPU (rayon); the default.
     #[default]
     Cpu,
     /// Blending runs on the [`crate::gpu::GpuRasterizer`] resource.
@@ -169,10 +182,15 @@ pub enum Backend {
 /// Gradient of the loss with respect to a deformed Gaussian (at the current time).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DeformedGrad {
+    /// dL/dμ(t) (world space).
     pub mean: glam::Vec3,
+    /// dL/dq(t), with respect to the normalised quaternion [w, x, y, z].
     pub rotation: [f32; 4],
+    /// dL/ds(t), with respect to the exponentiated scales.
     pub scale: glam::Vec3,
+    /// dL/dσ(t).
     pub opacity: f32,
+    /// dL/d rgb.
     pub color: [f32; 3],
 }
 
@@ -181,10 +199,15 @@ pub struct DeformedGrad {
 pub struct SplatBuffers {
     /// The deformed Gaussians gathered in slot order.
     pub deformed: Vec<crate::components::Deformed>,
+    /// The projected 2D splats, one per slot.
     pub splats: Vec<Splat>,
+    /// The CPU tile rasterizer and its binning scratch.
     pub rasterizer: Rasterizer,
+    /// The rendered image and alpha of the sampled view.
     pub render: RenderOutput,
+    /// Gradients with respect to each splat's 2D parameters.
     pub splat_grads: Vec<SplatGrad>,
+    /// Gradients with respect to each deformed Gaussian (zero for splats not drawn).
     pub deformed_grads: Vec<DeformedGrad>,
     /// ‖∂L/∂μ2D‖ in NDC units per slot (0 for splats not drawn).
     pub ndc_grad_norm: Vec<f32>,
@@ -193,9 +216,12 @@ pub struct SplatBuffers {
 /// The loss of the current iteration and its gradient with respect to the rendered image.
 #[derive(Resource, Default)]
 pub struct LossImage {
+    /// The loss value and its L1 and SSIM parts.
     pub value: LossValue,
     /// The ground truth of the sampled view as `f32` (decoded into the same buffer each time).
     pub target: crate::io::image::Image,
+    /// dL/d rgb per pixel of the render, row-major.
     pub d_color: Vec<[f32; 3]>,
+    /// Reused working buffers of the loss (SSIM maps, row sums).
     pub scratch: LossScratch,
 }

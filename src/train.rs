@@ -104,11 +104,18 @@ pub fn insert_render_resources(
 /// A checkpoint does not fit the data it is resumed on.
 #[derive(Debug, thiserror::Error)]
 pub enum ResumeError {
+    /// The checkpoint's saved view order names training view `index`, but the dataset has only
+    /// `views` training views: the data changed since the checkpoint was written.
     #[error(
         "the checkpoint's view order refers to training view {index}, but the data has {views} \
          training views: the data changed since the checkpoint was written"
     )]
-    ViewOrder { index: usize, views: usize },
+    ViewOrder {
+        /// The out-of-range training-view index found in the view order.
+        index: usize,
+        /// Number of training views in the dataset resumed on.
+        views: usize,
+    },
     /// The checkpoint's backend could not be opened.
     #[error(transparent)]
     Gpu(#[from] GpuError),
@@ -117,14 +124,22 @@ pub enum ResumeError {
 /// The initial Gaussians could not be made.
 #[derive(Debug, thiserror::Error)]
 pub enum InitError {
+    /// Carving (`init.method: Carve`) produced no point cloud for an anchor frame.
     #[error("initialisation: {0}")]
     Carve(#[from] CarveError),
+    /// The point-cloud file of `init.method: PointCloud(path)` could not be read.
     #[error("initialisation: {0}")]
     PointCloud(#[from] DataError),
+    /// The initialisation method gave no points for an anchor frame.
     #[error("initialisation: no points for anchor frame {frame}")]
-    Empty { frame: usize },
+    Empty {
+        /// The anchor frame index (not normalised time).
+        frame: usize,
+    },
+    /// The initial Gaussians and the per-pixel buffers do not fit in the available memory.
     #[error("initialisation: {0}")]
     Memory(#[from] BudgetError),
+    /// The scene asks for the GPU backend and no GPU rasterizer could be opened.
     #[error(transparent)]
     Gpu(#[from] GpuError),
 }
@@ -280,7 +295,9 @@ fn apply_memory_budget(
 /// The scores of every held-out view and the time spent rendering them (metrics excluded).
 #[derive(Clone, Debug, Default)]
 pub struct Evaluation {
+    /// The metrics of each held-out view, in the dataset's test order.
     pub scores: Vec<ViewScores>,
+    /// Wall-clock seconds spent rendering all of them.
     pub render_seconds: f32,
 }
 
@@ -293,6 +310,7 @@ impl Evaluation {
 
 /// A training run over one world: the schedules and the dataset.
 pub struct Trainer {
+    /// The ECS world: one entity per Gaussian plus the run's resources.
     pub world: World,
     train: Schedule,
     render: Schedule,

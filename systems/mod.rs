@@ -22,13 +22,26 @@ use bevy_ecs::schedule::{ScheduleLabel, SingleThreadedExecutor};
 /// The stages of one training iteration, in order.
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum TrainSet {
+    /// Counts the iteration, raises the SH degree on schedule and picks the (camera, frame)
+    /// view into [`crate::resources::ViewSample`].
     SampleView,
+    /// Writes each Gaussian's [`crate::components::WarpedTime`] (TOW).
     TimeWarp,
+    /// Evaluates each Gaussian at the sampled time into [`crate::components::Deformed`].
     Deform,
+    /// Projects (EWA) and rasterizes the deformed Gaussians into
+    /// [`crate::resources::SplatBuffers`].
     Splat,
+    /// Computes the photometric loss and its image gradient into
+    /// [`crate::resources::LossImage`].
     Loss,
+    /// Differentiates blending and projection, writes every [`crate::components::Grad`] and
+    /// runs the numeric guard.
     Backward,
+    /// One Adam step per parameter group (skipped after a numeric fault).
     Adam,
+    /// Accumulates densification statistics, clones, splits and prunes on schedule, resets
+    /// opacities (skipped after a numeric fault); the only structural changes.
     Densify,
 }
 

@@ -11,15 +11,23 @@ pub use raster::GpuRasterizer;
 /// The GPU backend could not start or a transfer failed.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
+    /// wgpu found no adapter (no Vulkan, Metal or DX12 driver, or none matching
+    /// `WGPU_BACKEND`).
     #[error(
         "no GPU adapter found ({0}); install a Vulkan, Metal or DX12 driver (Mesa's lavapipe works without a GPU) or use `backend: Cpu`"
     )]
     NoAdapter(#[from] wgpu::RequestAdapterError),
+    /// The adapter was found but refused to create a device with the requested features and
+    /// limits.
     #[error("the GPU adapter {adapter} refused a device: {source}")]
     Device {
+        /// The adapter's name.
         adapter: String,
+        /// wgpu's reason.
         source: wgpu::RequestDeviceError,
     },
+    /// Mapping or polling a buffer to copy results back to the CPU failed; the message is
+    /// wgpu's.
     #[error("reading back a GPU buffer failed: {0}")]
     Readback(String),
 }
@@ -30,8 +38,11 @@ pub(crate) const FLOAT_ATOMIC_FEATURES: wgpu::Features =
 
 /// A wgpu device and queue.
 pub struct GpuContext {
+    /// The logical device.
     pub device: wgpu::Device,
+    /// Its command queue.
     pub queue: wgpu::Queue,
+    /// Name, backend and driver of the adapter in use.
     pub adapter: wgpu::AdapterInfo,
 }
 

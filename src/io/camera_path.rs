@@ -31,24 +31,41 @@ use crate::data::Camera;
 /// A camera or path file could not be used.
 #[derive(Debug, thiserror::Error)]
 pub enum CameraFileError {
+    /// The file could not be read.
     #[error("cannot read {}: {source}", path.display())]
     Read {
+        /// The camera or path file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// The file is not valid RON of the expected shape, or a camera or key in it is unusable
+    /// (empty image, bad intrinsics, a matrix that is not a rigid transform, keys of different
+    /// image sizes, a time outside [0, 1], no keys).
     #[error("{}: {message}", path.display())]
-    Invalid { path: PathBuf, message: String },
+    Invalid {
+        /// The camera or path file.
+        path: PathBuf,
+        /// What is wrong, naming the key where there is one.
+        message: String,
+    },
 }
 
 /// A camera as written in a RON file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSpec {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Horizontal focal length in pixels.
     pub fx: f32,
+    /// Vertical focal length in pixels.
     pub fy: f32,
+    /// Principal point x in pixels (pixel column `x` has its centre at `x + 0.5`).
     pub cx: f32,
+    /// Principal point y in pixels (pixel row `y` has its centre at `y + 0.5`).
     pub cy: f32,
     /// World-to-camera, 4 rows of 4 (OpenCV convention); the last row must be 0 0 0 1.
     /// (Lists rather than arrays, so the file can write `[[..], ..]`.)
@@ -130,6 +147,7 @@ impl CameraSpec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PathKey {
+    /// The camera at this key.
     pub camera: CameraSpec,
     /// Normalised scene time in [0, 1].
     pub time: f32,
@@ -139,13 +157,16 @@ pub struct PathKey {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PathSpec {
+    /// The keys in path order (at least one, all of one image size).
     pub keys: Vec<PathKey>,
 }
 
 /// One frame to render: a camera and a normalised time.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Shot {
+    /// The camera (OpenCV convention).
     pub camera: Camera,
+    /// Normalised scene time in [0, 1].
     pub time: f32,
 }
 
@@ -266,7 +287,9 @@ pub struct Orbit {
     pub height: f32,
     /// Unit direction (orthogonal to `up`) of the first camera from the centre.
     pub start: Vec3,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels (`height` is the cameras' elevation).
     pub height_px: u32,
     /// Horizontal field of view in radians.
     pub fov_x: f32,

@@ -46,18 +46,34 @@ pub const CHECKPOINT_VERSION: u32 = 1;
 /// A checkpoint could not be written or read.
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
+    /// One of the checkpoint's files could not be read (missing folder or file, permissions).
     #[error("cannot read checkpoint file {}: {source}", path.display())]
     Read {
+        /// The file that could not be read.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// A file or folder of the checkpoint could not be written, renamed or removed.
     #[error("cannot write checkpoint file {}: {source}", path.display())]
     Write {
+        /// The file or folder (`<dir>`, `<dir>.partial`, `<dir>.old`) the operation was on.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// A file's content is wrong: not parseable, another format or version, tensors of the
+    /// wrong shape, or an iteration or Gaussian count that disagrees with `state.ron`; when
+    /// saving, its content could not be serialised.
     #[error("checkpoint file {}: {message}", path.display())]
-    Invalid { path: PathBuf, message: String },
+    Invalid {
+        /// The offending file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// Writing `tensors.safetensors`, or reading one of its tensors, failed (the error names
+    /// the file).
     #[error("checkpoint tensors: {0}")]
     Tensors(#[from] ModelError),
 }
@@ -65,16 +81,23 @@ pub enum CheckpointError {
 /// One Gaussian's trainable state.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GaussianState {
+    /// Every parameter component.
     pub params: GaussianParams,
+    /// Adam moments of every parameter group.
     pub adam: AdamMoments,
+    /// Densification statistics since the last densification step.
     pub accum: GradAccum,
 }
 
 /// The ChaCha8 generator's position: seed, stream and word position (128-bit, as text).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RngState {
+    /// The 32-byte ChaCha seed.
     pub seed: [u8; 32],
+    /// The ChaCha stream number.
     pub stream: u64,
+    /// Position in the key stream in 32-bit words, a decimal `u128` (RON has no 128-bit
+    /// integers).
     pub word_pos: String,
 }
 
@@ -99,26 +122,36 @@ impl RngState {
 /// Counters of the run at the checkpoint (the `state.ron` file, with the scene).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CheckpointState {
+    /// Always [`CHECKPOINT_FORMAT`].
     pub format: String,
+    /// Layout version, [`CHECKPOINT_VERSION`] when written.
     pub version: u32,
     /// Iterations completed.
     pub iteration: u32,
+    /// SH degree in use.
     pub sh_degree: u32,
+    /// Number of Gaussians (rows of every tensor in `tensors.safetensors`).
     pub gaussians: usize,
     /// The last densification step: iteration, cloned, split, pruned.
     pub last_densify: (u32, usize, usize, usize),
     /// Shuffled training-view indices of the current epoch and the next position in it.
     pub view_order: Vec<usize>,
+    /// Index into `view_order` of the next view to train on.
     pub view_next: usize,
+    /// State of the run's random generator.
     pub rng: RngState,
+    /// The scene configuration the run was trained with.
     pub scene: SceneConfig,
 }
 
 /// A whole checkpoint in memory.
 #[derive(Clone, Debug)]
 pub struct Checkpoint {
+    /// Counters, settings and RNG state (`state.ron`).
     pub state: CheckpointState,
+    /// Every Gaussian's parameters, Adam moments and statistics (`tensors.safetensors`).
     pub gaussians: Vec<GaussianState>,
+    /// The run's history (`log.json`).
     pub log: TrainingLog,
 }
 

@@ -26,22 +26,41 @@ pub const MODEL_VERSION: &str = "1";
 /// A model file could not be written or read.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
+    /// The file could not be read.
     #[error("cannot read model {}: {source}", path.display())]
     Read {
+        /// The model file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// The file could not be written (atomically, through a temporary file beside it).
     #[error("cannot write model {}: {source}", path.display())]
     Write {
+        /// The model file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// The file is not a safetensors file of this format and version, or its metadata
+    /// (`sh_degree`, `frame_count`, `model`) is invalid; when saving, the tensors or the
+    /// metadata could not be serialised.
     #[error("model {} is not a valid safetensors file: {message}", path.display())]
-    Format { path: PathBuf, message: String },
+    Format {
+        /// The model file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A parameter tensor is missing, not `f32`, of the wrong shape, or holds NaN or infinite
+    /// values.
     #[error("model {}: tensor `{tensor}`: {message}", path.display())]
     Tensor {
+        /// The model (or checkpoint tensor) file.
         path: PathBuf,
+        /// The tensor's name (a [`Param::NAME`], with a prefix in checkpoints).
         tensor: String,
+        /// What is wrong with it.
         message: String,
     },
 }
@@ -49,7 +68,9 @@ pub enum ModelError {
 /// A trained model: the Gaussians' parameters and the SH degree they were trained up to.
 #[derive(Clone, Debug, Default)]
 pub struct Model {
+    /// Every Gaussian's parameter components.
     pub gaussians: Vec<GaussianParams>,
+    /// SH degree in use at the end of training (0..=3).
     pub sh_degree: u32,
     /// Frames T of the sequence it was trained on (sets the TOW window); `None` in files that
     /// do not record it.

@@ -35,27 +35,44 @@ pub const STATIC_TEMPORAL_RAW: f32 = -30.0;
 /// A PLY file could not be read or written.
 #[derive(Debug, thiserror::Error)]
 pub enum PlyError {
+    /// The file could not be opened or read.
     #[error("cannot read {}: {source}", path.display())]
     Read {
+        /// The PLY file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// The file could not be written (atomically, through a temporary file beside it).
     #[error("cannot write {}: {source}", path.display())]
     Write {
+        /// The PLY file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// The file is not a 3DGS splat PLY: unparseable header or body, a missing property, an
+    /// `f_rest_*` count that is no SH degree 0–3, or a NaN or infinite value.
     #[error("{}: {message}", path.display())]
-    Format { path: PathBuf, message: String },
+    Format {
+        /// The PLY file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
 }
 
 /// One Gaussian at a fixed time, in the 3DGS parametrisation.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StaticSplat {
+    /// World-space centre (`x y z`).
     pub mean: [f32; 3],
     /// SH coefficients, `sh[k][channel]`; only the first (d + 1)² are written.
     pub sh: [[f32; 3]; SH_COEFFS],
+    /// Opacity as a logit (`opacity`); for a [`snapshot`], logit of σ(t), the temporal factor
+    /// included.
     pub opacity_logit: f32,
+    /// Natural log of the per-axis standard deviations (`scale_0..2`).
     pub log_scale: [f32; 3],
     /// Quaternion (w, x, y, z).
     pub rotation: [f32; 4],
@@ -64,7 +81,9 @@ pub struct StaticSplat {
 /// A static set of Gaussians and the SH degree its colours use.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SplatCloud {
+    /// SH degree 0–3: how many coefficients of each splat are meaningful and written.
     pub sh_degree: u32,
+    /// The Gaussians, in file order.
     pub splats: Vec<StaticSplat>,
 }
 

@@ -10,19 +10,33 @@ use super::image::Image;
 /// A video could not be made.
 #[derive(Debug, thiserror::Error)]
 pub enum VideoError {
+    /// `ffmpeg` could not be started (not on `PATH`) or waited for.
     #[error("cannot run ffmpeg: {0}")]
     Spawn(std::io::Error),
+    /// `ffmpeg` quit early or exited with an error while encoding the video at `path`.
     #[error("ffmpeg failed on {}: {message}", path.display())]
-    Ffmpeg { path: PathBuf, message: String },
+    Ffmpeg {
+        /// The video being made.
+        path: PathBuf,
+        /// ffmpeg's error output, or the exit status or pipe error when it printed nothing.
+        message: String,
+    },
+    /// The encoded video could not be moved into place at `path`.
     #[error("cannot write {}: {source}", path.display())]
     Write {
+        /// The video file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// A pushed frame's size differs from the video's.
     #[error("frame {index} is {got:?}, the video is {expected:?}")]
     FrameSize {
+        /// Index of the frame in the video, from 0.
         index: usize,
+        /// The frame's (width, height) in pixels.
         got: (usize, usize),
+        /// The video's (width, height) in pixels.
         expected: (usize, usize),
     },
 }

@@ -7,7 +7,9 @@ use super::{Splat, TILE};
 /// Per-tile, depth-sorted lists of splats, reused across frames.
 #[derive(Default)]
 pub struct TileBins {
+    /// Number of tile columns: ⌈width / 16⌉.
     pub tiles_x: usize,
+    /// Number of tile rows: ⌈height / 16⌉.
     pub tiles_y: usize,
     /// Tile rectangle [x0, y0, x1, y1) per splat (empty for invisible splats).
     rects: Vec<[u32; 4]>,

@@ -39,8 +39,11 @@ pub struct Splat {
     pub mean2d: Vec2,
     /// (a, b, c) of the inverse 2D covariance: power = −½(a·dx² + c·dy²) − b·dx·dy.
     pub conic: [f32; 3],
+    /// Camera-space depth z (sort key within a tile).
     pub depth: f32,
+    /// Opacity σ(t) in [0, 1]; alpha = min(0.99, opacity·G).
     pub opacity: f32,
+    /// Linear rgb.
     pub color: [f32; 3],
     /// Half-size in pixels of the screen box it covers.
     pub extent: Vec2,
@@ -51,9 +54,13 @@ pub struct Splat {
 /// Gradient of the loss with respect to a splat's blended quantities.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SplatGrad {
+    /// dL/d[`Splat::mean2d`], in pixel units.
     pub mean2d: Vec2,
+    /// dL/d[`Splat::conic`] (a, b, c).
     pub conic: [f32; 3],
+    /// dL/d[`Splat::opacity`].
     pub opacity: f32,
+    /// dL/d[`Splat::color`].
     pub color: [f32; 3],
 }
 
@@ -129,7 +136,9 @@ pub struct Rasterizer {
 /// Rendered image and coverage (alpha = 1 − final transmittance), row-major.
 #[derive(Clone, Debug)]
 pub struct RenderOutput {
+    /// The blended colour, background included.
     pub image: Image,
+    /// Coverage per pixel in [0, 1], row-major.
     pub alpha: Vec<f32>,
 }
 
@@ -143,6 +152,7 @@ impl Default for RenderOutput {
 }
 
 impl Rasterizer {
+    /// An empty rasterizer; buffers are allocated on first use.
     pub fn new() -> Self {
         Self::default()
     }

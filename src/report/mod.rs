@@ -19,13 +19,23 @@ use crate::io::image::{Image, ImageError};
 /// The report could not be written.
 #[derive(Debug, thiserror::Error)]
 pub enum ReportError {
+    /// plotters could not draw a plot.
     #[error("drawing {}: {message}", path.display())]
-    Plot { path: PathBuf, message: String },
+    Plot {
+        /// The PNG being drawn.
+        path: PathBuf,
+        /// plotters' message.
+        message: String,
+    },
+    /// A PNG (a plot or a held-out view strip) could not be saved; the error names the file.
     #[error(transparent)]
     Image(#[from] ImageError),
+    /// The report folder could not be created or `index.html` written.
     #[error("cannot write {}: {source}", path.display())]
     Write {
+        /// The folder or file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
 }
@@ -34,18 +44,23 @@ pub enum ReportError {
 pub struct ReportView {
     /// Caption, e.g. "camera 5, frame 12: PSNR 24.1 dB".
     pub caption: String,
+    /// The rendered view.
     pub render: Image,
+    /// The ground-truth image, of the same size.
     pub ground_truth: Image,
 }
 
 /// What the report shows.
 pub struct Report<'a> {
+    /// Page title and heading (HTML-escaped when written).
     pub title: String,
     /// Figures of the run as (name, value) rows.
     pub figures: Vec<(String, String)>,
+    /// The run's history, plotted.
     pub log: &'a TrainingLog,
     /// Normalised lifespan ψ̄ of every Gaussian at the end of training.
     pub lifespans: Vec<f32>,
+    /// Held-out views shown as render | ground truth | error strips.
     pub views: Vec<ReportView>,
 }
 
