@@ -11,7 +11,6 @@
 mod common;
 
 use anyhow::Result;
-use bevy_ecs::prelude::*;
 use tadgs::components::{Opacity, Position};
 use tadgs::model::deform::sigmoid;
 use tadgs::resources::TrainState;
