@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use crate::components::{Deformed, SplatSlot};
 use crate::gpu::GpuRasterizer;
-use crate::model::project::project;
+use crate::model::project::project_beyond;
 use crate::raster::Splat;
 use crate::resources::{Settings, SplatBuffers, ViewSample};
 
@@ -70,19 +70,13 @@ pub fn project_all(
 /// The splat of one deformed Gaussian; invisible when culled (nearer than `near_plane`, off
 /// screen or with σ(t) below 1/255).
 pub fn project_splat(d: &Deformed, camera: &crate::data::Camera, near_plane: f32) -> Splat {
-    let depth = camera
-        .world_to_camera
-        .transform_point3(Vec3::from_array(d.mean))
-        .z;
-    if !(depth >= near_plane) {
-        return Splat::default();
-    }
-    match project(
+    match project_beyond(
         Vec3::from_array(d.mean),
         d.rotation,
         Vec3::from_array(d.scale),
         d.opacity,
         camera,
+        near_plane,
     ) {
         Some(p) => Splat {
             mean2d: p.mean2d,

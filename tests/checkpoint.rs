@@ -1,33 +1,26 @@
 //! Checkpoints: a run stopped, saved to disk, loaded and continued ends exactly where the same
 //! run without a stop ends; damaged or mismatched checkpoints are refused with the file named.
 
+mod tiny;
+
 use std::sync::Arc;
 
 use tadgs::data::Dataset;
-use tadgs::data::synthetic::demo_scene;
 use tadgs::io::checkpoint::{Checkpoint, LOG_FILE, STATE_FILE, TENSORS_FILE};
 use tadgs::report::{StepRecord, TrainingLog};
-use tadgs::scene::{DataSource, SceneConfig};
+use tadgs::scene::SceneConfig;
 use tadgs::train::Trainer;
 
 /// A 6-frame, 48×36 demo scene: 36 iterations, densification every 10 from 10 and an opacity
 /// reset at 30, SH degree raised every 8 iterations.
 fn tiny_scene() -> (SceneConfig, Arc<Dataset>) {
-    let mut synthetic = demo_scene();
-    synthetic.frames = 6;
-    synthetic.width = 48;
-    synthetic.height = 36;
-    synthetic.supersample = 1;
-    let mut config = SceneConfig::new("tiny", DataSource::Synthetic(synthetic.clone()));
-    config.init.points_per_anchor = 200;
-    config.init.anchor_spacing = 3;
+    let (mut config, dataset) = tiny::tiny_demo(48, 36, 200);
     config.train.iterations = 36;
     config.train.sh_increase_interval = 8;
     config.densify.from_iter = 5;
     config.densify.interval = 10;
     config.densify.grad_threshold = 2e-5;
     config.densify.opacity_reset_interval = 30;
-    let dataset = Arc::new(synthetic.build().expect("tiny scene builds"));
     (config, dataset)
 }
 

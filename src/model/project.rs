@@ -196,11 +196,25 @@ pub fn project(
     opacity: f32,
     cam: &Camera,
 ) -> Option<Projected> {
+    project_beyond(mean, quat, scale, opacity, cam, NEAR_PLANE)
+}
+
+/// [`project`] with a farther near plane: also None when the camera-space depth is below
+/// `near_plane` (which never goes below [`NEAR_PLANE`]).
+#[inline]
+pub fn project_beyond(
+    mean: Vec3,
+    quat: [f32; 4],
+    scale: Vec3,
+    opacity: f32,
+    cam: &Camera,
+    near_plane: f32,
+) -> Option<Projected> {
     if !(opacity >= MIN_OPACITY) {
         return None;
     }
     let p_z = cam.rotation().row(2).dot(mean) + cam.translation().z;
-    if !(p_z >= NEAR_PLANE) {
+    if !(p_z >= near_plane.max(NEAR_PLANE)) {
         return None;
     }
     let e = ewa(mean, quat, scale, cam);
