@@ -3,8 +3,8 @@
 use rayon::prelude::*;
 
 use super::{
-    ALPHA_MAX, GROUPS, LANES, Packed, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS,
-    TRANSMITTANCE_MIN, box_in_tile, falloff_lanes, group_lanes, pick, row_columns, simd_kernel,
+    ALPHA_MAX, F8, GROUPS, LANES, M8, Packed, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS,
+    TRANSMITTANCE_MIN, box_in_tile, falloff_lanes, group_lanes, row_spans, simd_kernel,
 };
 
 /// Gaussian falloff exponent at offset (dx, dy) from the centre.
@@ -120,18 +120,21 @@ simd_kernel! {
         let mut t = [[1f32; LANES]; GROUPS];
         let mut rgb = [[[0f32; LANES]; GROUPS]; 3];
         let mut last = [[0u32; LANES]; GROUPS];
-        // 1 until the pixel stops; `live_count` per group lets finished groups be skipped.
-        let mut live = [[0f32; LANES]; GROUPS];
+        // All bits set until the pixel stops; `live_count` per group lets finished groups be
+        // skipped.
+        let mut live = [[0u32; LANES]; GROUPS];
         let mut live_count = [0u32; GROUPS];
         for (r, group) in live.iter_mut().enumerate() {
             for (x, l) in group.iter_mut().enumerate() {
                 let p = r * LANES + x;
                 let inside = origin.0 + p % TILE < size.0 && origin.1 + p / TILE < size.1;
-                *l = inside as u32 as f32;
+                *l = if inside { !0 } else { 0 };
                 live_count[r] += inside as u32;
             }
         }
         let mut remaining: u32 = live_count.iter().sum();
+        let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
+        let (alpha_max, t_min) = (F8::splat(ALPHA_MAX), F8::splat(TRANSMITTANCE_MIN));
 
         for (k, &s) in entries.iter().enumerate() {
             if remaining == 0 {
@@ -139,10 +142,13 @@ simd_kernel! {
             }
             let sp = &splats[s as usize];
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
+            let spans = row_spans(sp, origin, (x0, x1));
             let contributor = k as u32 + 1;
+            let opacity = F8::splat(sp.opacity);
+            let splat_color = sp.color.map(F8::splat);
             for y in y0..y1 {
                 let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-                let (cx0, cx1) = row_columns(sp, origin.0, dy, (x0, x1));
+                let (cx0, cx1) = spans.row(y);
                 for h in cx0 / LANES..cx1.div_ceil(LANES) {
                     let r = y * (TILE / LANES) + h;
                     if live_count[r] == 0 {
@@ -150,24 +156,24 @@ simd_kernel! {
                     }
                     let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
                     let (_, gauss) = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
-                    let (t, live, last) = (&mut t[r], &mut live[r], &mut last[r]);
-                    let mut stopped = 0u32;
-                    for x in 0..LANES {
-                        let raw = sp.opacity * gauss[x];
-                        let alpha = pick(raw < ALPHA_MAX, raw, ALPHA_MAX);
-                        let drawn = (gauss[x] > 0.0) & (live[x] > 0.0);
-                        let next = t[x] * (1.0 - alpha);
-                        let stop = drawn & (next < TRANSMITTANCE_MIN);
-                        let blend = drawn & !stop;
-                        let w = pick(blend, alpha * t[x], 0.0);
-                        for c in 0..3 {
-                            rgb[c][r][x] += sp.color[c] * w;
-                        }
-                        t[x] = pick(blend, next, t[x]);
-                        last[x] = if blend { contributor } else { last[x] };
-                        live[x] = pick(stop, 0.0, live[x]);
-                        stopped += stop as u32;
+                    // Whole-register selects, never per-lane conditional stores (masked
+                    // stores are slow on some CPUs).
+                    let g = F8(gauss);
+                    let raw = opacity * g;
+                    let alpha = raw.select(raw.lt(alpha_max), alpha_max);
+                    let drawn = zero.lt(g) & M8(live[r]);
+                    let t_front = F8(t[r]);
+                    let next = t_front * (one - alpha);
+                    let stop = drawn & next.lt(t_min);
+                    let blend = drawn.and_not(stop);
+                    let w = (alpha * t_front).select(blend, zero);
+                    for c in 0..3 {
+                        rgb[c][r] = (F8(rgb[c][r]) + splat_color[c] * w).0;
                     }
+                    t[r] = next.select(blend, t_front).0;
+                    last[r] = blend.select_u32(contributor, last[r]);
+                    live[r] = M8(live[r]).and_not(stop).0;
+                    let stopped = stop.count();
                     live_count[r] -= stopped;
                     remaining -= stopped;
                 }

@@ -247,30 +247,48 @@ fn group_lanes(h: usize, x0: usize, x1: usize) -> (usize, usize) {
     )
 }
 
-/// The columns of the box columns [x0, x1) that can hold drawn pixels of the splat in the tile
-/// row at vertical offset `dy` from its centre: where the exponent reaches `min_power` (minus a
-/// margin for rounding), plus a pixel each side. The per-pixel test still decides; this only
-/// skips lane groups that cannot pass it. Empty when the row misses the ellipse.
+/// For every tile row, the columns of the box columns [x0, x1) that can hold drawn pixels of
+/// the splat: where the exponent reaches `min_power` (minus a margin for rounding), plus a
+/// pixel each side. The per-pixel test still decides; this only skips lane groups that cannot
+/// pass it. A row that misses the ellipse gets an empty span. All sixteen rows are computed at
+/// once in vector lanes, so a splat pays for its spans once per tile instead of once per row.
 #[inline(always)]
-fn row_columns(sp: &Packed, origin_x: usize, dy: f32, (x0, x1): (usize, usize)) -> (usize, usize) {
+fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> RowSpans {
     let [s0, s1, b_over_a] = sp.span;
-    let q = s0 - s1 * dy * dy;
-    if q < 0.0 {
-        return (x0, x0);
-    }
-    let half = q.sqrt();
-    // Tile-local column of dx = 0 (pixel x has its centre at x + 0.5).
-    let centre = sp.mean[0] - 0.5 - origin_x as f32 - b_over_a * dy;
-    // max/min return the other operand for NaN, so both ends land in [x0, x1].
     let (x0f, x1f) = (x0 as f32, x1 as f32);
-    let lo = ((centre - half).floor() - 1.0).max(x0f).min(x1f);
-    let hi = ((centre + half).ceil() + 2.0).min(x1f).max(lo);
-    // SAFETY: lo and hi are finite and in [0, 16].
-    unsafe {
-        (
-            lo.to_int_unchecked::<u32>() as usize,
-            hi.to_int_unchecked::<u32>() as usize,
-        )
+    let (origin_x, origin_y) = (origin.0 as f32, origin.1 as f32);
+    let mut spans = RowSpans::default();
+    for y in 0..TILE {
+        // The same dy as the pixel loops compute (integers are exact in f32).
+        let dy = (origin_y + y as f32) + 0.5 - sp.mean[1];
+        let q = s0 - s1 * dy * dy;
+        let half = q.max(0.0).sqrt();
+        // Tile-local column of dx = 0 (pixel x has its centre at x + 0.5).
+        let centre = sp.mean[0] - 0.5 - origin_x - b_over_a * dy;
+        // max/min return the other operand for NaN, so both ends land in [x0, x1].
+        let lo = ((centre - half).floor() - 1.0).max(x0f).min(x1f);
+        let hi = ((centre + half).ceil() + 2.0).min(x1f).max(lo);
+        let hi = if q < 0.0 { lo } else { hi };
+        // SAFETY: lo and hi are finite and in [0, 16].
+        unsafe {
+            spans.lo[y] = lo.to_int_unchecked::<u32>();
+            spans.hi[y] = hi.to_int_unchecked::<u32>();
+        }
+    }
+    spans
+}
+
+/// Column spans [lo, hi) per tile row (see [`row_spans`]).
+#[derive(Default)]
+struct RowSpans {
+    lo: [u32; TILE],
+    hi: [u32; TILE],
+}
+
+impl RowSpans {
+    #[inline(always)]
+    fn row(&self, y: usize) -> (usize, usize) {
+        (self.lo[y] as usize, self.hi[y] as usize)
     }
 }
 
@@ -397,6 +415,24 @@ impl F8 {
 }
 
 impl M8 {
+    /// Lanes set in `self` but not in `other`.
+    #[inline(always)]
+    fn and_not(self, other: M8) -> M8 {
+        M8(lanewise!(self.0, other.0, |x, y| x & !y))
+    }
+
+    /// `value` where set, else `other`, for integer lanes.
+    #[inline(always)]
+    fn select_u32(self, value: u32, other: [u32; LANES]) -> [u32; LANES] {
+        lanewise!(self.0, other, |m, o| (value & m) | (o & !m))
+    }
+
+    /// Number of lanes set.
+    #[inline(always)]
+    fn count(self) -> u32 {
+        self.0.iter().map(|&m| m & 1).sum()
+    }
+
     /// Lanes where `k < values[i]`.
     #[inline(always)]
     fn below(k: u32, values: [u32; LANES]) -> M8 {
