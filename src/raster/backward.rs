@@ -4,8 +4,8 @@ use rayon::prelude::*;
 
 use super::binning::for_each_tile_mut;
 use super::{
-    ALPHA_MAX, F8, GROUPS, LANES, M8, Packed, Rasterizer, Splat, SplatGrad, TILE, TILE_PIXELS,
-    box_in_tile, falloff_lanes, group_lanes, row_spans, simd_kernel,
+    ALPHA_MAX, F8, GROUPS, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer, Splat, SplatGrad, TILE,
+    TILE_PIXELS, box_in_tile, falloff_lanes, group_lanes, prefetch_entry, row_spans, simd_kernel,
 };
 
 impl Rasterizer {
@@ -128,6 +128,9 @@ simd_kernel! {
         let max_contributor = group_contributors.iter().copied().max().unwrap_or(0) as usize;
 
         for k in (0..max_contributor).rev() {
+            if let Some(ahead) = k.checked_sub(PREFETCH_AHEAD) {
+                prefetch_entry(splats, entries, ahead);
+            }
             let sp = &splats[entries[k] as usize];
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
             let spans = row_spans(sp, origin, (x0, x1));

@@ -3,8 +3,9 @@
 use rayon::prelude::*;
 
 use super::{
-    ALPHA_MAX, F8, GROUPS, LANES, M8, Packed, Rasterizer, RenderOutput, Splat, TILE, TILE_PIXELS,
-    TRANSMITTANCE_MIN, box_in_tile, falloff_lanes, group_lanes, row_spans, simd_kernel,
+    ALPHA_MAX, F8, GROUPS, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer, RenderOutput, Splat,
+    TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile, falloff_lanes, group_lanes, prefetch_entry,
+    row_spans, simd_kernel,
 };
 
 /// Gaussian falloff exponent at offset (dx, dy) from the centre.
@@ -140,6 +141,7 @@ simd_kernel! {
             if remaining == 0 {
                 break;
             }
+            prefetch_entry(splats, entries, k + PREFETCH_AHEAD);
             let sp = &splats[s as usize];
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
             let spans = row_spans(sp, origin, (x0, x1));

@@ -202,6 +202,29 @@ pub fn exp_falloff(x: f32) -> f32 {
     f32::from_bits(n_bits.wrapping_add(127) << 23) * p
 }
 
+/// Asks the CPU to start loading the splat an entry loop will reach a few entries later: tile
+/// lists jump around the splat array, and that first load is otherwise a cache miss the loop
+/// waits on.
+#[inline(always)]
+fn prefetch_entry(splats: &[Packed], entries: &[u32], k: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(&s) = entries.get(k) {
+        if let Some(sp) = splats.get(s as usize) {
+            // SAFETY: a prefetch never faults and the pointer is in bounds.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                    (sp as *const Packed).cast(),
+                )
+            };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (splats, entries, k);
+}
+
+/// How many entries ahead [`prefetch_entry`] looks.
+const PREFETCH_AHEAD: usize = 4;
+
 /// Tile-local pixel range [x0, x1) × [y0, y1) of a splat's screen box, clipped to the tile:
 /// outside the box the splat's alpha is below 1/255 (see [`Splat::extent`]), so those pixels
 /// are skipped.
