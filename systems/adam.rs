@@ -7,6 +7,7 @@ use bevy_ecs::system::ScheduleSystem;
 use crate::components::{
     Adam, Color, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal,
 };
+use crate::model::sh::coeff_count;
 use crate::resources::{Settings, TrainState};
 use crate::scene::LearningRates;
 
@@ -22,6 +23,13 @@ pub trait ParamGroup: Param {
     /// Per-value learning rates, laid out like the component itself. `position_lr` is the
     /// current (decayed, extent-scaled) position learning rate.
     fn learning_rates(lr: &LearningRates, position_lr: f32) -> Self;
+
+    /// How many leading values of the flat layout ([`Param::values`]) can have a non-zero
+    /// gradient at SH degree `sh_degree`; Adam leaves the rest alone. Their gradients and
+    /// moments are exactly zero, so skipping them changes nothing but the memory traffic.
+    fn active_values(_sh_degree: u32) -> usize {
+        std::mem::size_of::<Self>() / std::mem::size_of::<f32>()
+    }
 }
 
 impl ParamGroup for Position {
@@ -85,6 +93,11 @@ impl ParamGroup for Color {
         rates.sh[0] = [lr.sh_dc; 3];
         rates
     }
+
+    /// Coefficients above the active degree get no gradient (the basis is band by band).
+    fn active_values(sh_degree: u32) -> usize {
+        3 * coeff_count(sh_degree)
+    }
 }
 
 /// Position learning rate at `iteration`: exponential interpolation from `position` to
@@ -113,13 +126,13 @@ pub fn adam_step<P: ParamGroup>(
     let step = state.iteration.max(1) as i32;
     let bias1 = 1.0 - BETA1.powi(step);
     let bias2 = 1.0 - BETA2.powi(step);
+    let active = P::active_values(state.sh_degree);
     params
         .par_iter_mut()
         .for_each(|(mut value, grad, mut adam)| {
             let adam = &mut *adam;
             let (m, v) = (adam.m.values_mut(), adam.v.values_mut());
-            for (i, (x, g)) in value
-                .values_mut()
+            for (i, (x, g)) in value.values_mut()[..active]
                 .iter_mut()
                 .zip(grad.0.values())
                 .enumerate()

@@ -74,23 +74,36 @@ impl TileBins {
             .map(|s| tile_rect(s, tiles_x, tiles_y))
             .collect_into_vec(&mut self.rects);
 
-        // Entries per splat (splat-major order) and per tile.
+        // Entries per splat (splat-major order).
         self.splat_offsets.clear();
         self.splat_offsets.reserve(splats.len() + 1);
         self.splat_offsets.push(0);
-        self.tile_fill.clear();
-        self.tile_fill.resize(tile_count + 1, 0);
         let mut total = 0u32;
         for r in &self.rects {
             total += (r[2] - r[0]) * (r[3] - r[1]);
             self.splat_offsets.push(total);
-            for ty in r[1]..r[3] {
-                let row = ty as usize * self.tiles_x + 1;
-                for tx in r[0]..r[2] {
-                    self.tile_fill[row + tx as usize] += 1;
-                }
-            }
         }
+
+        // Entries per tile. Tile rows are split into bands, one task each; a band counts and
+        // later fills only its own tiles, so the bands never write the same place.
+        let tiles_per_band = self.tiles_x * self.tiles_y.div_ceil(band_count()).max(1);
+        let (tiles_x, rects) = (self.tiles_x, &self.rects);
+        self.tile_fill.clear();
+        self.tile_fill.resize(tile_count + 1, 0);
+        self.tile_fill[1..]
+            .par_chunks_mut(tiles_per_band)
+            .enumerate()
+            .for_each(|(band, counts)| {
+                let rows = band_rows(band, tiles_per_band, counts.len(), tiles_x);
+                for r in rects {
+                    for ty in r[1].max(rows.start)..r[3].min(rows.end) {
+                        let row = (ty - rows.start) as usize * tiles_x;
+                        for tx in r[0]..r[2] {
+                            counts[row + tx as usize] += 1;
+                        }
+                    }
+                }
+            });
         for t in 0..tile_count {
             self.tile_fill[t + 1] += self.tile_fill[t];
         }
@@ -109,25 +122,76 @@ impl TileBins {
         );
         self.sorted_keys.par_sort_unstable();
 
+        // Scatter in depth order, band by band in parallel.
         let total = total as usize;
         self.sorted_splats.resize(total, 0);
         self.sorted_position.resize(total, 0);
-        for &key in &self.sorted_keys {
-            let s = key as u32;
-            let r = self.rects[s as usize];
-            let mut entry = self.splat_offsets[s as usize] as usize;
-            for ty in r[1]..r[3] {
-                let row = ty as usize * self.tiles_x;
-                for tx in r[0]..r[2] {
-                    let t = row + tx as usize;
-                    let k = self.tile_fill[t] as usize;
-                    self.tile_fill[t] += 1;
-                    self.sorted_splats[k] = s;
-                    self.sorted_position[entry] = k as u32;
-                    entry += 1;
+        let sorted_splats = Disjoint(self.sorted_splats.as_mut_ptr());
+        let sorted_position = Disjoint(self.sorted_position.as_mut_ptr());
+        let (keys, splat_offsets) = (&self.sorted_keys, &self.splat_offsets);
+        self.tile_fill[..tile_count]
+            .par_chunks_mut(tiles_per_band)
+            .enumerate()
+            .for_each(|(band, fill)| {
+                let rows = band_rows(band, tiles_per_band, fill.len(), tiles_x);
+                for &key in keys {
+                    let s = key as u32;
+                    let r = rects[s as usize];
+                    let rect_width = (r[2] - r[0]) as usize;
+                    for ty in r[1].max(rows.start)..r[3].min(rows.end) {
+                        let mut entry =
+                            splat_offsets[s as usize] as usize + (ty - r[1]) as usize * rect_width;
+                        let row = (ty - rows.start) as usize * tiles_x;
+                        for tx in r[0]..r[2] {
+                            let slot = &mut fill[row + tx as usize];
+                            let k = *slot as usize;
+                            *slot += 1;
+                            // SAFETY: k is an entry of one of this band's tiles and `entry` the
+                            // (splat, tile) pair of one of them; no other band writes either,
+                            // and both are below `total`, the length of the two buffers.
+                            unsafe {
+                                sorted_splats.write(k, s);
+                                sorted_position.write(entry, k as u32);
+                            }
+                            entry += 1;
+                        }
+                    }
                 }
-            }
-        }
+            });
+    }
+}
+
+/// Bands of tile rows binned in parallel: a few per thread, so an uneven band does not hold
+/// the others up.
+fn band_count() -> usize {
+    2 * rayon::current_num_threads()
+}
+
+/// Tile rows of band `band` whose chunk of per-tile values has `len` tiles.
+fn band_rows(
+    band: usize,
+    tiles_per_band: usize,
+    len: usize,
+    tiles_x: usize,
+) -> std::ops::Range<u32> {
+    let first = band * tiles_per_band / tiles_x;
+    first as u32..(first + len / tiles_x) as u32
+}
+
+/// A buffer that parallel tasks write at indices no two of them share.
+#[derive(Clone, Copy)]
+struct Disjoint<T>(*mut T);
+
+// SAFETY: the tasks holding copies write disjoint elements (see the call sites).
+unsafe impl<T: Send> Send for Disjoint<T> {}
+unsafe impl<T: Send> Sync for Disjoint<T> {}
+
+impl<T> Disjoint<T> {
+    /// # Safety
+    /// `index` is in bounds and no other task reads or writes it meanwhile.
+    #[inline(always)]
+    unsafe fn write(self, index: usize, value: T) {
+        unsafe { *self.0.add(index) = value }
     }
 }
 

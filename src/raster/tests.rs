@@ -366,3 +366,64 @@ fn tiled_rasterizer_matches_per_pixel_reference() {
     // Invisible splats get no gradient.
     assert!(grads[3] == SplatGrad::default());
 }
+
+/// Binning equals the definition (every visible splat in every tile its screen box overlaps,
+/// ordered by depth then index, and `sorted_position` pointing each (splat, tile) pair at its
+/// entry) for image sizes whose tile rows split unevenly into the parallel bands.
+#[test]
+fn binning_matches_naive_per_tile_lists() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for (w, h) in [(37, 29), (83, 45), (200, 75), (16, 200), (333, 17)] {
+        let mut splats = crowded_scene(&mut rng, 300, w, h);
+        // Equal depths exercise the index tie-break.
+        for s in splats.iter_mut().step_by(7) {
+            s.depth = 2.0;
+        }
+        let mut bins = TileBins::default();
+        bins.build(&splats, w, h);
+        let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let rect = |s: &Splat| {
+            let t = TILE as f32;
+            let lo = (s.mean2d - s.extent) / t;
+            let hi = (s.mean2d + s.extent) / t;
+            let x0 = lo.x.floor().clamp(0.0, tiles_x as f32) as usize;
+            let y0 = lo.y.floor().clamp(0.0, tiles_y as f32) as usize;
+            let x1 = (hi.x.floor() + 1.0).clamp(0.0, tiles_x as f32) as usize;
+            let y1 = (hi.y.floor() + 1.0).clamp(0.0, tiles_y as f32) as usize;
+            (x0, y0, x1, y1)
+        };
+        for ty in 0..tiles_y {
+            for tx in 0..tiles_x {
+                let mut expected: Vec<usize> = (0..splats.len())
+                    .filter(|&i| {
+                        let (x0, y0, x1, y1) = rect(&splats[i]);
+                        splats[i].visible && (x0..x1).contains(&tx) && (y0..y1).contains(&ty)
+                    })
+                    .collect();
+                expected
+                    .sort_by(|&a, &b| splats[a].depth.total_cmp(&splats[b].depth).then(a.cmp(&b)));
+                let tile = ty * tiles_x + tx;
+                let got: Vec<usize> = bins.sorted_splats[bins.tile_range(tile)]
+                    .iter()
+                    .map(|&s| s as usize)
+                    .collect();
+                assert_eq!(got, expected, "{w}×{h}, tile ({tx}, {ty})");
+            }
+        }
+        for s in 0..splats.len() {
+            for e in bins.splat_range(s) {
+                assert_eq!(
+                    bins.sorted_splats[bins.sorted_position[e] as usize] as usize,
+                    s
+                );
+            }
+            let (x0, y0, x1, y1) = rect(&splats[s]);
+            let covered = if splats[s].visible {
+                (x1.saturating_sub(x0)) * (y1.saturating_sub(y0))
+            } else {
+                0
+            };
+            assert_eq!(bins.splat_range(s).len(), covered, "{w}×{h}, splat {s}");
+        }
+    }
+}
