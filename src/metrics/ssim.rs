@@ -127,36 +127,40 @@ fn blur<const K: usize>(
     g: &[f32; WIN],
 ) {
     debug_assert!(w > 0 && h > 0 && buf.len() == w * h && tmp.len() == w * h);
-    // Horizontal pass: tmp(x, y) = Σ_q g[q − x + R] buf(q, y) over in-image q.
+    // Both passes are sums of shifted rows, written as one multiply-add per tap over a whole
+    // row of flattened K-vectors, which the compiler vectorises.
+    //
+    // Horizontal pass: tmp(x, y) = Σ_d g[d + R] buf(x + d, y) over in-image x + d.
     tmp.par_chunks_mut(w)
         .zip(buf.par_chunks(w))
         .for_each(|(out, row)| {
-            for (x, o) in out.iter_mut().enumerate() {
-                let lo = x.saturating_sub(RADIUS);
-                let hi = (x + RADIUS).min(w - 1);
-                let mut acc = [0.0f32; K];
-                for (q, v) in row.iter().enumerate().take(hi + 1).skip(lo) {
-                    let wgt = g[q + RADIUS - x];
-                    for c in 0..K {
-                        acc[c] += wgt * v[c];
-                    }
+            let (out, row) = (out.as_flattened_mut(), row.as_flattened());
+            out.fill(0.0);
+            for (tap, &wgt) in g.iter().enumerate() {
+                // Pixels x in [x0, x1) read x + tap − R, which is inside the row.
+                let x0 = RADIUS.saturating_sub(tap);
+                let x1 = (w + RADIUS).saturating_sub(tap).min(w);
+                if x0 >= x1 {
+                    continue;
                 }
-                *o = acc;
+                let src = &row[(x0 + tap - RADIUS) * K..(x1 + tap - RADIUS) * K];
+                for (o, v) in out[x0 * K..x1 * K].iter_mut().zip(src) {
+                    *o += wgt * v;
+                }
             }
         });
     // Vertical pass: buf(x, y) = Σ_q g[q − y + R] tmp(x, q) over in-image rows q.
     let tmp: &[[f32; K]] = tmp;
     buf.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
-        out.fill([0.0; K]);
+        let out = out.as_flattened_mut();
+        out.fill(0.0);
         let lo = y.saturating_sub(RADIUS);
         let hi = (y + RADIUS).min(h - 1);
         for q in lo..=hi {
             let wgt = g[q + RADIUS - y];
-            let src = &tmp[q * w..(q + 1) * w];
+            let src = tmp[q * w..(q + 1) * w].as_flattened();
             for (o, v) in out.iter_mut().zip(src) {
-                for c in 0..K {
-                    o[c] += wgt * v[c];
-                }
+                *o += wgt * v;
             }
         }
     });
