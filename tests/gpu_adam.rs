@@ -116,8 +116,8 @@ fn adam_parity<P: ParamGroup>(gpu: &GpuContext, adam: &GpuAdam, n: usize, steps:
 }
 
 /// Every parameter group (strides 1 to 48, per-slot rates, the decaying position rate, the
-/// fixed temporal centre with rate 0) over five steps: values, m and v within 1e-6 relative
-/// of the CPU's.
+/// fixed temporal centre with rate 0) over five steps, and one group dispatched as a 2D grid:
+/// values, m and v within 1e-6 relative of the CPU's.
 #[test]
 fn gpu_adam_equals_cpu_adam_step() {
     let Some(ctx) = gpu::gpu_context() else {
@@ -135,7 +135,14 @@ fn gpu_adam_equals_cpu_adam_step() {
         ("scale", adam_parity::<Scale>(&ctx, &adam, n, 5)),
         ("color", adam_parity::<Color>(&ctx, &adam, n, 5)),
     ];
-    for (name, [x, m, v]) in results {
+    // Dispatches as 2D grids (as beyond 65 535 workgroups): 36 workgroups in rows of 2.
+    tadgs::gpu::set_max_dispatch_width(2);
+    let grid = (
+        "position, 2D grid",
+        adam_parity::<Position>(&ctx, &adam, n, 5),
+    );
+    tadgs::gpu::set_max_dispatch_width(65_535);
+    for (name, [x, m, v]) in results.into_iter().chain([grid]) {
         eprintln!("adam {name}: worst relative error values {x:e}, m {m:e}, v {v:e}");
         assert!(
             x <= 1e-6 && m <= 1e-6 && v <= 1e-6,
@@ -214,6 +221,8 @@ fn gpu_stats_equal_cpu_accumulate_stats() {
         for min_opacity in [None, Some(0.3)] {
             for model in [TemporalOpacity::Rbf, TemporalOpacity::asymmetric(300)] {
                 for warp in [TimeWarp::Identity, TimeWarp::tow(50.0, 300, 0.75)] {
+                    // With VAD, dispatches as 2D grids (16 workgroups in rows of 3).
+                    tadgs::gpu::set_max_dispatch_width(if vad { 3 } else { 65_535 });
                     let mut settings = settings();
                     settings.densify.vad = vad;
                     settings.densify.vad_min_opacity = min_opacity;
@@ -282,6 +291,7 @@ fn gpu_stats_equal_cpu_accumulate_stats() {
             }
         }
     }
+    tadgs::gpu::set_max_dispatch_width(65_535);
     eprintln!(
         "stats: worst relative error weighted gradient {:e}, weight {:e}; worst absolute \
          lifespan sum error {:e}",

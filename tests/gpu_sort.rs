@@ -66,15 +66,26 @@ fn gpu_radix_sort_equals_stable_sort() {
         (1_200_000, 32, 100_000),
     ] {
         // Random keys of `bits` bits from `distinct` values spread over the range.
-        let mask = if bits >= 32 { u32::MAX } else { (1 << bits) - 1 };
+        let mask = if bits >= 32 {
+            u32::MAX
+        } else {
+            (1 << bits) - 1
+        };
         let keys: Vec<u32> = (0..n)
-            .map(|_| rng.random_range(0..distinct as u32).wrapping_mul(2_654_435_761) & mask)
+            .map(|_| {
+                rng.random_range(0..distinct as u32)
+                    .wrapping_mul(2_654_435_761)
+                    & mask
+            })
             .collect();
         let values: Vec<u32> = (0..n as u32).collect();
         let start = Instant::now();
         sort.sort(&keys, &values, bits, &mut keys_out, &mut values_out)
             .unwrap();
-        eprintln!("radix sort of {n} pairs on {bits} bits: {:?}", start.elapsed());
+        eprintln!(
+            "radix sort of {n} pairs on {bits} bits: {:?}",
+            start.elapsed()
+        );
         let mut expected: Vec<(u32, u32)> = keys.iter().copied().zip(values).collect();
         expected.sort_by_key(|&(k, _)| k);
         assert_eq!(keys_out.len(), n);
@@ -120,7 +131,10 @@ fn random_splats(
 /// end at the image border.
 fn edge_splats(width: f32, height: f32) -> Vec<Splat> {
     let mut splats = Vec::new();
-    for (i, x) in [0.0, 16.0, 31.999, 32.0, width - 16.0, width].iter().enumerate() {
+    for (i, x) in [0.0, 16.0, 31.999, 32.0, width - 16.0, width]
+        .iter()
+        .enumerate()
+    {
         for (j, e) in [0.0, 8.0, 16.0, 0.5].iter().enumerate() {
             splats.push(Splat {
                 mean2d: Vec2::new(*x, height - x.min(height)),
@@ -160,7 +174,11 @@ fn gpu_binning_equals_cpu_bins() {
     let mut hidden = random_splats(&mut rng, 100, 64.0, 64.0, 4);
     hidden.iter_mut().for_each(|s| s.visible = false);
     cases.push((64, 64, hidden));
-    cases.push((1280, 720, random_splats(&mut rng, 60_000, 1280.0, 720.0, 5000)));
+    cases.push((
+        1280,
+        720,
+        random_splats(&mut rng, 60_000, 1280.0, 720.0, 5000),
+    ));
     for (width, height, splats) in cases {
         cpu.build(&splats, width, height);
         let start = Instant::now();
@@ -184,7 +202,63 @@ fn gpu_binning_equals_cpu_bins() {
                 "{case}: splats of tile {t}"
             );
         }
-        assert_eq!(out.splat_offsets, cpu.splat_offsets(), "{case}: splat offsets");
-        assert_eq!(out.sorted_position, cpu.sorted_position, "{case}: sorted positions");
+        assert_eq!(
+            out.splat_offsets,
+            cpu.splat_offsets(),
+            "{case}: splat offsets"
+        );
+        assert_eq!(
+            out.sorted_position, cpu.sorted_position,
+            "{case}: sorted positions"
+        );
     }
+}
+
+/// Dispatches laid out as 2D grids (as beyond 65 535 workgroups) give the same results: the
+/// grid width is lowered to 3 workgroups so that small inputs need several rows, most with
+/// workgroups past the end. Scan, sort and binning are checked against their references.
+#[test]
+fn two_dimensional_dispatches_give_the_same_results() {
+    let Some(ctx) = gpu::gpu_context() else {
+        return;
+    };
+    // Process-wide: the other tests of this file may run with it too, and must pass either way.
+    tadgs::gpu::set_max_dispatch_width(3);
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+
+    let values: Vec<u32> = (0..100_000).map(|_| rng.random_range(0..1000)).collect();
+    let mut out = Vec::new();
+    let total = GpuScan::new(&ctx)
+        .exclusive_scan(&values, &mut out)
+        .unwrap();
+    let mut sum = 0;
+    for (i, (&v, &o)) in values.iter().zip(&out).enumerate() {
+        assert_eq!(o, sum, "prefix {i}");
+        sum += v;
+    }
+    assert_eq!(total, sum);
+
+    let keys: Vec<u32> = (0..30_000).map(|_| rng.random_range(0..5000)).collect();
+    let ids: Vec<u32> = (0..30_000).collect();
+    let (mut sorted_keys, mut sorted_ids) = (Vec::new(), Vec::new());
+    GpuRadixSort::new(&ctx)
+        .sort(&keys, &ids, 13, &mut sorted_keys, &mut sorted_ids)
+        .unwrap();
+    let mut expected: Vec<(u32, u32)> = keys.iter().copied().zip(ids).collect();
+    expected.sort_by_key(|&(k, _)| k);
+    let got: Vec<(u32, u32)> = sorted_keys.into_iter().zip(sorted_ids).collect();
+    assert!(got == expected, "2D sort differs from the stable sort");
+
+    let splats = random_splats(&mut rng, 3000, 160.0, 120.0, 20);
+    let mut cpu = TileBins::default();
+    cpu.build(&splats, 160, 120);
+    let mut binner = GpuBinner::new(&ctx);
+    binner.bin(&splats, 160, 120).unwrap();
+    let mut bins = BinReadback::default();
+    binner.read(&mut bins).unwrap();
+    assert_eq!(bins.tile_offsets, cpu.tile_offsets);
+    assert_eq!(bins.sorted_splats, cpu.sorted_splats);
+    assert_eq!(bins.splat_offsets, cpu.splat_offsets());
+    assert_eq!(bins.sorted_position, cpu.sorted_position);
+    tadgs::gpu::set_max_dispatch_width(65_535);
 }

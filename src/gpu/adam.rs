@@ -47,7 +47,10 @@ impl GpuParamGroup {
     /// # Panics
     /// If `stride` is 0.
     pub fn new(gpu: &GpuContext, stride: usize) -> Self {
-        assert!(stride > 0, "a parameter group has at least one value per Gaussian");
+        assert!(
+            stride > 0,
+            "a parameter group has at least one value per Gaussian"
+        );
         use wgpu::BufferUsages as U;
         let device = &gpu.device;
         let buffer = |label| GrowBuffer::new(device, label, U::STORAGE | U::COPY_DST | U::COPY_SRC);
@@ -188,9 +191,7 @@ impl GpuAdam {
         group
             .host_step_sizes
             .extend(rates.iter().map(|rate| rate / bias1));
-        group
-            .step_sizes
-            .upload(&self.gpu, &group.host_step_sizes);
+        group.step_sizes.upload(&self.gpu, &group.host_step_sizes);
         group.params.upload(
             &self.gpu,
             &[AdamParams {

@@ -1,8 +1,22 @@
 //! Helpers shared by the compute-kernel wrappers: pipelines, bind groups and one-dimensional
 //! dispatches of any size.
 
+use std::sync::atomic::{AtomicU32, Ordering};
+
 /// Most workgroups per dispatch dimension (WebGPU's and Vulkan's guaranteed minimum).
 pub(crate) const MAX_GROUPS: u32 = 65_535;
+
+/// The grid width of [`dispatch`]: [`MAX_GROUPS`] unless lowered by
+/// [`set_max_dispatch_width`].
+static DISPATCH_WIDTH: AtomicU32 = AtomicU32::new(MAX_GROUPS);
+
+/// Caps the workgroups per dispatch dimension of the binning, sort, scan, Adam and statistics
+/// kernels, process-wide (clamped into 1..=65535, the default). Dispatches with more
+/// workgroups are laid out as 2D grids; lowering the cap runs that layout on small inputs,
+/// which is how the tests check it.
+pub fn set_max_dispatch_width(width: u32) {
+    DISPATCH_WIDTH.store(width.clamp(1, MAX_GROUPS), Ordering::Relaxed);
+}
 /// Invocations per workgroup of the one-dimensional kernels.
 pub(crate) const GROUP_SIZE: u32 = 256;
 
@@ -57,7 +71,7 @@ pub(crate) fn bind(
 }
 
 /// Records `groups` workgroups of `pipeline`, laid out as a 2D grid when they exceed
-/// [`MAX_GROUPS`]: the kernels number their workgroup `id.y · num_workgroups.x + id.x` and
+/// [`MAX_GROUPS`] (or the width set by [`set_max_dispatch_width`]): the kernels number their workgroup `id.y · num_workgroups.x + id.x` and
 /// skip the few past the end. Nothing is recorded for 0 groups.
 pub(crate) fn dispatch(
     encoder: &mut wgpu::CommandEncoder,
@@ -68,7 +82,7 @@ pub(crate) fn dispatch(
     if groups == 0 {
         return;
     }
-    let across = groups.min(MAX_GROUPS);
+    let across = groups.min(DISPATCH_WIDTH.load(Ordering::Relaxed));
     let mut pass = encoder.begin_compute_pass(&Default::default());
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, bind_group, &[]);

@@ -17,6 +17,7 @@ mod sort;
 mod stats;
 
 pub use adam::{GpuAdam, GpuParamGroup};
+pub use kernel::set_max_dispatch_width;
 pub use raster::GpuRasterizer;
 pub use scan::GpuScan;
 pub use sort::{BinBuffers, BinReadback, GpuBinner, GpuRadixSort, SplatBox};

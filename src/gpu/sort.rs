@@ -165,7 +165,8 @@ impl GpuRadixSort {
             encoder.copy_buffer_to_buffer(values, 0, staging, bytes, bytes);
         }
         self.gpu.queue.submit([encoder.finish()]);
-        self.gpu.read_back(&self.staging.buffer, 2 * bytes, out_keys)?;
+        self.gpu
+            .read_back(&self.staging.buffer, 2 * bytes, out_keys)?;
         out_values.clear();
         out_values.extend_from_slice(&out_keys[n as usize..]);
         out_keys.truncate(n as usize);
@@ -313,7 +314,13 @@ impl GpuBinner {
             device,
             "bin",
             BIN_WGSL,
-            ["count_tiles", "depth_counts", "emit", "finish", "tile_ranges"],
+            [
+                "count_tiles",
+                "depth_counts",
+                "emit",
+                "finish",
+                "tile_ranges",
+            ],
         );
         use wgpu::BufferUsages as U;
         let storage = U::STORAGE | U::COPY_DST | U::COPY_SRC;
@@ -440,7 +447,10 @@ impl GpuBinner {
                 vec![
                     (0, params()),
                     (3, offsets()),
-                    (6, storage(&self.depth.values[self.depth_result].buffer, bytes)),
+                    (
+                        6,
+                        storage(&self.depth.values[self.depth_result].buffer, bytes),
+                    ),
                     (7, storage(&self.depth_offsets.buffer, offsets_bytes)),
                 ],
             );
