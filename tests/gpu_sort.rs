@@ -151,7 +151,7 @@ fn edge_splats(width: f32, height: f32) -> Vec<Splat> {
 /// Tile binning on the GPU equals `TileBins::build`: the per-tile ranges, every tile's splats
 /// in the same order (depth, then splat index), the per-splat entry offsets and the sorted
 /// position of every entry. Image sizes that are and are not multiples of the tile, a single
-/// tile, populations from 0 to 60 000 splats (over 300 000 entries).
+/// tile, populations from 0 to 60 000 splats (about 780 000 entries).
 #[test]
 fn gpu_binning_equals_cpu_bins() {
     let Some(ctx) = gpu::gpu_context() else {

@@ -46,8 +46,8 @@ impl GpuScan {
         }
     }
 
-    /// Replaces `values` by their exclusive prefix sums (`out[i]` = Σ `values[..i]`, wrapping
-    /// on overflow) and returns the total.
+    /// Writes the exclusive prefix sums of `values` into `out` (`out[i]` = Σ `values[..i]`,
+    /// wrapping on overflow) and returns the total.
     pub fn exclusive_scan(&mut self, values: &[u32], out: &mut Vec<u32>) -> Result<u32, GpuError> {
         let len = values.len() as u32;
         // One more value, 0, whose prefix is the total.

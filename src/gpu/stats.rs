@@ -155,7 +155,7 @@ impl GpuStats {
         self.accum.reserve(&self.gpu.device, bytes);
         if bytes > 0 {
             let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
-            encoder.clear_buffer(&self.accum.buffer, 0, Some(bytes.next_multiple_of(4)));
+            encoder.clear_buffer(&self.accum.buffer, 0, Some(bytes));
             self.gpu.queue.submit([encoder.finish()]);
         }
     }
