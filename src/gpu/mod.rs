@@ -1,12 +1,27 @@
 //! GPU backend (wgpu): the splat rasterizer's forward and backward blending as WGSL compute
 //! passes (`shaders/raster_*.wgsl`), held to the CPU reference in `src/raster/` by parity tests.
 //!
-//! Projection, tile binning and the per-tile depth sort stay on the CPU (rayon); the GPU runs
-//! the per-pixel work, which is most of an iteration's cost.
+//! Projection, tile binning and the per-tile depth sort stay on the CPU (rayon) in the training
+//! schedule; the GPU runs the per-pixel work, which is most of an iteration's cost.
+//!
+//! Kernels for the other stages, each held to its CPU reference by parity tests but not yet
+//! part of the schedule: tile binning with a portable radix sort ([`GpuBinner`],
+//! [`GpuRadixSort`], [`GpuScan`]), Adam ([`GpuAdam`]) and the densification statistics
+//! ([`GpuStats`]).
 
+mod adam;
+mod kernel;
 mod raster;
+mod scan;
+mod sort;
+mod stats;
 
+pub use adam::{GpuAdam, GpuParamGroup};
+pub use kernel::set_max_dispatch_width;
 pub use raster::GpuRasterizer;
+pub use scan::GpuScan;
+pub use sort::{BinBuffers, BinReadback, GpuBinner, GpuRadixSort, SplatBox};
+pub use stats::{GpuStats, StatsConfig};
 
 /// The GPU backend could not start or a transfer failed.
 #[derive(Debug, thiserror::Error)]
@@ -36,7 +51,9 @@ pub enum GpuError {
 pub(crate) const FLOAT_ATOMIC_FEATURES: wgpu::Features =
     wgpu::Features::SHADER_FLOAT32_ATOMIC.union(wgpu::Features::SUBGROUP);
 
-/// A wgpu device and queue.
+/// A wgpu device and queue. Cloning shares them (wgpu handles are reference-counted), so the
+/// kernels built on one context work on the same buffers.
+#[derive(Clone)]
 pub struct GpuContext {
     /// The logical device.
     pub device: wgpu::Device,

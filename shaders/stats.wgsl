@@ -1,0 +1,125 @@
+// Densification statistics of one view (systems/densify.rs::accumulate_stats), one invocation
+// per splat slot: a visible splat (and, with a minimum, one whose σ(t) exceeds it) adds its
+// gradient norm weighted by σ(t) (VAD) or 1, the weight, its normalised lifespan ψ̄
+// (model/deform.rs::lifespan_fraction through the inverse time warp of model/warp.rs), one to
+// the count, and raises the largest screen radius.
+
+struct SplatBox {
+    mean: vec2<f32>,
+    extent: vec2<f32>,
+    depth: f32,
+    visible: u32,
+}
+
+// The Temporal component: centre t_i and the raw temporal scale.
+struct Temporal {
+    center: f32,
+    scale0: f32,
+    scale1: f32,
+}
+
+// The GradAccum component.
+struct GradAccum {
+    weighted_grad: f32,
+    weight: f32,
+    lifespan_sum: f32,
+    count: u32,
+    max_radius: f32,
+}
+
+struct StatsParams {
+    count: u32,
+    vad: u32,
+    has_min_opacity: u32,
+    min_opacity: f32,
+    // 0: Rbf; 1: Asymmetric with smallest width w_min.
+    model: u32,
+    w_min: f32,
+    // sqrt(2 ln 5), as the CPU rounds it.
+    asymmetric_k: f32,
+    // 0: identity; 1: TOW with (rho, s_near, s_far).
+    warp: u32,
+    rho: f32,
+    s_near: f32,
+    s_far: f32,
+    lambda: f32,
+}
+
+const LN_5: f32 = 1.609438;
+const ASYMMETRIC_MAX_WIDTH: f32 = 1.1;
+// exp() arguments are capped here so that they stay finite (e^80 ≈ 5.5e34); the CPU's
+// infinities give the same lifespans.
+const EXP_CAP: f32 = 80.0;
+
+@group(0) @binding(0) var<uniform> params: StatsParams;
+@group(0) @binding(1) var<storage, read> splats: array<SplatBox>;
+@group(0) @binding(2) var<storage, read> opacity: array<f32>;
+@group(0) @binding(3) var<storage, read> grad_norm: array<f32>;
+@group(0) @binding(4) var<storage, read> temporal: array<Temporal>;
+@group(0) @binding(5) var<storage, read_write> accum: array<GradAccum>;
+
+// W⁻¹(w) for w ≥ 0 (TimeWarp::inverse).
+fn warp_inverse(w: f32) -> f32 {
+    if params.warp == 0u {
+        return w;
+    }
+    if w <= 0.5 * params.rho {
+        return w / params.s_near;
+    }
+    return 0.5 * params.lambda + (w - 0.5 * params.rho) / params.s_far;
+}
+
+// min(w_min · e^raw, 1.1).
+fn asymmetric_width(raw: f32) -> f32 {
+    let w = params.w_min * exp(min(raw, EXP_CAP));
+    if w > ASYMMETRIC_MAX_WIDTH {
+        return ASYMMETRIC_MAX_WIDTH;
+    }
+    return w;
+}
+
+// ψ̄: the length of {t ∈ [0, 1] : σ(t)/σ^s > 0.2}.
+fn lifespan_fraction(t: Temporal) -> f32 {
+    var a_left: f32;
+    var a_right: f32;
+    if params.model == 0u {
+        // sqrt(ln 5 / ψ), ψ = e^raw.
+        let a = sqrt(LN_5 * exp(min(-t.scale0, EXP_CAP)));
+        a_left = a;
+        a_right = a;
+    } else {
+        a_left = asymmetric_width(t.scale0) * params.asymmetric_k;
+        a_right = asymmetric_width(t.scale1) * params.asymmetric_k;
+    }
+    let lo = max(t.center - warp_inverse(a_left), 0.0);
+    let hi = min(t.center + warp_inverse(a_right), 1.0);
+    return clamp(hi - lo, 0.0, 1.0);
+}
+
+@compute @workgroup_size(256)
+fn accumulate_stats(
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let i = (wid.y * groups.x + wid.x) * 256u + lid;
+    if i >= params.count {
+        return;
+    }
+    let b = splats[i];
+    let sigma = opacity[i];
+    if b.visible == 0u || (params.has_min_opacity != 0u && sigma <= params.min_opacity) {
+        return;
+    }
+    var weight = 1.0;
+    if params.vad != 0u {
+        weight = sigma;
+    }
+    var a = accum[i];
+    a.weighted_grad += weight * grad_norm[i];
+    a.weight += weight;
+    a.lifespan_sum += lifespan_fraction(temporal[i]);
+    a.count += 1u;
+    a.max_radius = max(a.max_radius, max(b.extent.x, b.extent.y));
+    accum[i] = a;
+}

@@ -1,0 +1,233 @@
+//! Adam on the GPU (`shaders/adam.wgsl`): the update of
+//! [`crate::systems::adam::adam_step`] on a parameter group held in GPU buffers.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::kernel::{self, bind, dispatch, groups_for, storage};
+use super::{GpuContext, GpuError, GrowBuffer};
+use crate::systems::adam::{BETA1, BETA2, EPSILON};
+
+const ADAM_WGSL: &str = include_str!("../../shaders/adam.wgsl");
+
+/// `AdamParams` in `shaders/adam.wgsl`.
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[repr(C)]
+struct AdamParams {
+    len: u32,
+    stride: u32,
+    beta1: f32,
+    beta2: f32,
+    one_minus_beta1: f32,
+    one_minus_beta2: f32,
+    bias2: f32,
+    epsilon: f32,
+}
+
+/// One parameter group on the GPU: values, gradients and Adam moments as flat `f32` arrays,
+/// Gaussian-major with `stride` values per Gaussian (a component's fields in declaration
+/// order, as [`crate::components::Param::values`] lays them out).
+pub struct GpuParamGroup {
+    gpu: GpuContext,
+    stride: usize,
+    len: usize,
+    values: GrowBuffer,
+    grads: GrowBuffer,
+    m: GrowBuffer,
+    v: GrowBuffer,
+    params: GrowBuffer,
+    step_sizes: GrowBuffer,
+    staging: GrowBuffer,
+    host_step_sizes: Vec<f32>,
+    host_read: Vec<f32>,
+}
+
+impl GpuParamGroup {
+    /// An empty group of `stride` values per Gaussian on `gpu`'s device.
+    ///
+    /// # Panics
+    /// If `stride` is 0.
+    pub fn new(gpu: &GpuContext, stride: usize) -> Self {
+        assert!(
+            stride > 0,
+            "a parameter group has at least one value per Gaussian"
+        );
+        use wgpu::BufferUsages as U;
+        let device = &gpu.device;
+        let buffer = |label| GrowBuffer::new(device, label, U::STORAGE | U::COPY_DST | U::COPY_SRC);
+        Self {
+            gpu: gpu.clone(),
+            stride,
+            len: 0,
+            values: buffer("adam_values"),
+            grads: buffer("adam_grads"),
+            m: buffer("adam_m"),
+            v: buffer("adam_v"),
+            params: GrowBuffer::new(device, "adam_params", U::UNIFORM | U::COPY_DST),
+            step_sizes: buffer("adam_step_sizes"),
+            staging: GrowBuffer::new(device, "adam_staging", U::MAP_READ | U::COPY_DST),
+            host_step_sizes: Vec::new(),
+            host_read: Vec::new(),
+        }
+    }
+
+    /// Values per Gaussian.
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// Number of values (Gaussians × stride).
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the group holds no values.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Replaces the values and moments (gradients are zeroed).
+    ///
+    /// # Panics
+    /// If the three slices differ in length or their length is not a multiple of the stride.
+    pub fn upload(&mut self, values: &[f32], m: &[f32], v: &[f32]) {
+        assert!(
+            m.len() == values.len() && v.len() == values.len(),
+            "one moment pair per value"
+        );
+        assert_eq!(values.len() % self.stride, 0, "whole Gaussians only");
+        self.len = values.len();
+        self.values.upload(&self.gpu, values);
+        self.m.upload(&self.gpu, m);
+        self.v.upload(&self.gpu, v);
+        let bytes = 4 * self.len as u64;
+        self.grads.reserve(&self.gpu.device, bytes);
+        if bytes > 0 {
+            let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+            encoder.clear_buffer(&self.grads.buffer, 0, Some(bytes));
+            self.gpu.queue.submit([encoder.finish()]);
+        }
+    }
+
+    /// Replaces the gradients (one per value).
+    ///
+    /// # Panics
+    /// If `grads` has not one value per parameter value.
+    pub fn upload_grads(&mut self, grads: &[f32]) {
+        assert_eq!(grads.len(), self.len, "one gradient per value");
+        self.grads.upload(&self.gpu, grads);
+    }
+
+    /// Copies the values and moments back.
+    pub fn read(
+        &mut self,
+        values: &mut Vec<f32>,
+        m: &mut Vec<f32>,
+        v: &mut Vec<f32>,
+    ) -> Result<(), GpuError> {
+        let bytes = 4 * self.len as u64;
+        self.staging.reserve(&self.gpu.device, 3 * bytes);
+        if bytes > 0 {
+            let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+            for (i, b) in [&self.values, &self.m, &self.v].into_iter().enumerate() {
+                encoder.copy_buffer_to_buffer(
+                    &b.buffer,
+                    0,
+                    &self.staging.buffer,
+                    i as u64 * bytes,
+                    bytes,
+                );
+            }
+            self.gpu.queue.submit([encoder.finish()]);
+        }
+        self.gpu
+            .read_back(&self.staging.buffer, 3 * bytes, &mut self.host_read)?;
+        for (i, out) in [values, m, v].into_iter().enumerate() {
+            out.clear();
+            out.extend_from_slice(&self.host_read[i * self.len..(i + 1) * self.len]);
+        }
+        Ok(())
+    }
+
+    /// The GPU buffers (values, gradients, m, v), for kernels that fill or read them.
+    pub fn buffers(&self) -> [&wgpu::Buffer; 4] {
+        [
+            &self.values.buffer,
+            &self.grads.buffer,
+            &self.m.buffer,
+            &self.v.buffer,
+        ]
+    }
+}
+
+/// The Adam kernel: [`crate::systems::adam::adam_step`] on a [`GpuParamGroup`].
+pub struct GpuAdam {
+    gpu: GpuContext,
+    pipeline: wgpu::ComputePipeline,
+}
+
+impl GpuAdam {
+    /// Builds the pipeline on `gpu`'s device.
+    pub fn new(gpu: &GpuContext) -> Self {
+        let [pipeline] = kernel::pipelines(&gpu.device, "adam", ADAM_WGSL, ["adam"]);
+        Self {
+            gpu: gpu.clone(),
+            pipeline,
+        }
+    }
+
+    /// One Adam step at global step `iteration` (bias correction for `iteration.max(1)`, as on
+    /// the CPU) with the learning rate `rates[slot]` for every value at `slot` of a Gaussian's
+    /// stride (e.g. [`crate::systems::adam::ParamGroup::learning_rates`] `.values()`).
+    /// Submits the work without waiting for it.
+    ///
+    /// # Panics
+    /// If `rates` has not one rate per slot of the stride.
+    pub fn step(&self, group: &mut GpuParamGroup, rates: &[f32], iteration: u32) {
+        assert_eq!(rates.len(), group.stride, "one learning rate per slot");
+        let step = iteration.max(1) as i32;
+        let bias1 = 1.0 - BETA1.powi(step);
+        let bias2 = 1.0 - BETA2.powi(step);
+        group.host_step_sizes.clear();
+        group
+            .host_step_sizes
+            .extend(rates.iter().map(|rate| rate / bias1));
+        group.step_sizes.upload(&self.gpu, &group.host_step_sizes);
+        group.params.upload(
+            &self.gpu,
+            &[AdamParams {
+                len: group.len as u32,
+                stride: group.stride as u32,
+                beta1: BETA1,
+                beta2: BETA2,
+                one_minus_beta1: 1.0 - BETA1,
+                one_minus_beta2: 1.0 - BETA2,
+                bias2,
+                epsilon: EPSILON,
+            }],
+        );
+        if group.len == 0 {
+            return;
+        }
+        let bytes = 4 * group.len as u64;
+        let bind_group = bind(
+            &self.gpu.device,
+            &self.pipeline,
+            vec![
+                (0, group.params.buffer.as_entire_binding()),
+                (1, group.step_sizes.binding()),
+                (2, storage(&group.grads.buffer, bytes)),
+                (3, storage(&group.values.buffer, bytes)),
+                (4, storage(&group.m.buffer, bytes)),
+                (5, storage(&group.v.buffer, bytes)),
+            ],
+        );
+        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+        dispatch(
+            &mut encoder,
+            &self.pipeline,
+            &bind_group,
+            groups_for(group.len as u32),
+        );
+        self.gpu.queue.submit([encoder.finish()]);
+    }
+}
