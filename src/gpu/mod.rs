@@ -2,10 +2,14 @@
 //! passes (`shaders/raster_*.wgsl`), held to the CPU reference in `src/raster/` by parity tests.
 //!
 //! Projection, tile binning and the per-tile depth sort stay on the CPU (rayon); the GPU runs
-//! the per-pixel work, which is most of an iteration's cost.
+//! the per-pixel work, which is most of an iteration's cost. [`GpuDeformer`] has the
+//! per-Gaussian stages (deformation, projection, parameter gradients) as compute kernels too,
+//! held to the CPU systems by `tests/gpu_deform.rs`; the training schedule does not use it yet.
 
+mod deform;
 mod raster;
 
+pub use deform::{DeformSettings, GpuDeformer, ParamGradients, ParamSlices};
 pub use raster::GpuRasterizer;
 
 /// The GPU backend could not start or a transfer failed.
@@ -30,13 +34,27 @@ pub enum GpuError {
     /// wgpu's.
     #[error("reading back a GPU buffer failed: {0}")]
     Readback(String),
+    /// A buffer would exceed what the device can bind in one storage binding.
+    #[error(
+        "the GPU {what} buffer would need {bytes} bytes, above the device's limit of {limit} bytes per storage binding"
+    )]
+    TooLarge {
+        /// Which buffer.
+        what: &'static str,
+        /// Bytes it would need.
+        bytes: u64,
+        /// The device's `max_storage_buffer_binding_size` (or `max_buffer_size` if smaller).
+        limit: u64,
+    },
 }
 
 /// What the fast backward needs: float atomics, and subgroup sums that make them 8–32× fewer.
 pub(crate) const FLOAT_ATOMIC_FEATURES: wgpu::Features =
     wgpu::Features::SHADER_FLOAT32_ATOMIC.union(wgpu::Features::SUBGROUP);
 
-/// A wgpu device and queue.
+/// A wgpu device and queue. Cloning shares the device (wgpu handles are reference counted), so
+/// several GPU stages can work on one device and pass buffers between them.
+#[derive(Clone)]
 pub struct GpuContext {
     /// The logical device.
     pub device: wgpu::Device,
