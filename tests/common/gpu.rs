@@ -1,4 +1,4 @@
-//! Shared by the GPU tests: opens the GPU rasterizer, or skips (fails under CI=true).
+//! Shared by the GPU tests: opens a GPU stage, or skips (fails under CI=true).
 
 use tadgs::gpu::{GpuError, GpuRasterizer};
 
@@ -8,8 +8,14 @@ use tadgs::gpu::{GpuError, GpuRasterizer};
 pub fn gpu_rasterizer(
     open: impl FnOnce() -> Result<GpuRasterizer, GpuError>,
 ) -> Option<GpuRasterizer> {
+    open_or_skip(open)
+}
+
+/// Any GPU stage from `open`, or None after printing why a GPU could not be opened; under
+/// `CI=true` that is a failure, as in [`gpu_rasterizer`].
+pub fn open_or_skip<T>(open: impl FnOnce() -> Result<T, GpuError>) -> Option<T> {
     match open() {
-        Ok(gpu) => Some(gpu),
+        Ok(stage) => Some(stage),
         Err(e) => {
             if std::env::var("CI").is_ok_and(|v| v == "true") {
                 panic!("{e}; CI=true requires a GPU adapter");
