@@ -290,6 +290,12 @@ impl CachedBindGroup {
 /// the parameters changed on the CPU, [`GpuDeformer::upload_warped_time`] for the view's
 /// time, [`GpuDeformer::forward`], then after blending [`GpuDeformer::backward`] with the
 /// splat gradients; each `read_*` method copies one result back.
+///
+/// Device needs: no optional feature; at most 7 storage buffers and one uniform buffer per
+/// kernel (WebGPU's default limits allow 8 and 12), and one storage binding of 388 bytes per
+/// Gaussian for the parameters (and as much for their gradients): about 346 000 Gaussians
+/// under the 128 MiB binding limit of lavapipe and WebGPU's defaults, far more on desktop
+/// GPUs. A larger upload fails with [`GpuError::TooLarge`].
 pub struct GpuDeformer {
     gpu: GpuContext,
     deform: wgpu::ComputePipeline,
@@ -309,6 +315,8 @@ pub struct GpuDeformer {
     backward_group: CachedBindGroup,
     /// Gaussians in the parameter buffer.
     count: usize,
+    /// Whether the deformed and splat buffers hold a forward pass of the uploaded Gaussians.
+    forwarded: bool,
     host_params: Vec<f32>,
     host_splats: Vec<[f32; SPLAT_FLOATS]>,
     host_splat_grads: Vec<[f32; SPLAT_GRAD_FLOATS]>,
@@ -366,6 +374,7 @@ impl GpuDeformer {
             project_group: CachedBindGroup::default(),
             backward_group: CachedBindGroup::default(),
             count: 0,
+            forwarded: false,
             host_params: Vec::new(),
             host_splats: Vec::new(),
             host_splat_grads: Vec::new(),
@@ -405,12 +414,15 @@ impl GpuDeformer {
         }
         self.params.reserve(&self.gpu.device, bytes);
         self.count = count;
+        self.forwarded = false;
         Ok(bytes)
     }
 
-    /// Uploads every parameter component (the slices must have the same length; panics
-    /// otherwise) and the warped times (same length). Each component is copied straight
-    /// into its section of the parameter buffer.
+    /// Uploads every parameter component and the warped times. Each component is copied
+    /// straight into its section of the parameter buffer.
+    ///
+    /// # Panics
+    /// Unless every slice, `warped` included, has the same length.
     pub fn upload_components(
         &mut self,
         params: ParamSlices<'_>,
@@ -465,8 +477,10 @@ impl GpuDeformer {
         Ok(())
     }
 
-    /// Uploads the warped times of the view (one per Gaussian: panics unless `warped` has
-    /// [`GpuDeformer::len`] entries). The parameters stay as they are.
+    /// Uploads the warped times of the view; the parameters stay as they are.
+    ///
+    /// # Panics
+    /// Unless `warped` has [`GpuDeformer::len`] entries.
     pub fn upload_warped_time(&mut self, warped: &[WarpedTime]) {
         assert_eq!(
             warped.len(),
@@ -485,6 +499,7 @@ impl GpuDeformer {
         let gpu = &self.gpu;
         gpu.queue
             .write_buffer(&self.frame.buffer, 0, bytemuck::bytes_of(&uniform));
+        self.forwarded = true;
         self.deformed
             .reserve(&gpu.device, (n * size_of::<Deformed>()) as u64);
         self.splats
@@ -521,9 +536,17 @@ impl GpuDeformer {
     /// [`GpuDeformer::forward`], whose camera and settings it reuses) to every parameter and
     /// to the NDC gradient norms, into the resident gradient buffers (read them with
     /// [`GpuDeformer::read_grads`] and [`GpuDeformer::read_ndc_grad_norm`]).
+    ///
+    /// # Panics
+    /// Unless `splat_grads` has [`GpuDeformer::len`] entries and a forward pass ran since the
+    /// parameters were uploaded.
     pub fn backward(&mut self, splat_grads: &[SplatGrad]) {
         let n = self.count;
         assert_eq!(splat_grads.len(), n, "one splat gradient per Gaussian");
+        assert!(
+            self.forwarded,
+            "GpuDeformer::backward needs a forward pass of the uploaded parameters"
+        );
         self.host_splat_grads.clear();
         self.host_splat_grads.extend(splat_grads.iter().map(|g| {
             [
