@@ -7,9 +7,11 @@
 //! Kernels for the other stages, each held to its CPU reference by parity tests but not yet
 //! part of the schedule: tile binning with a portable radix sort ([`GpuBinner`],
 //! [`GpuRadixSort`], [`GpuScan`]), Adam ([`GpuAdam`]) and the densification statistics
-//! ([`GpuStats`]).
+//! ([`GpuStats`]); and the per-Gaussian stages, deformation, projection and parameter gradients
+//! ([`GpuDeformer`], held to the CPU systems by `tests/gpu_deform.rs`).
 
 mod adam;
+mod deform;
 mod kernel;
 mod raster;
 mod scan;
@@ -17,6 +19,7 @@ mod sort;
 mod stats;
 
 pub use adam::{GpuAdam, GpuParamGroup};
+pub use deform::{DeformSettings, GpuDeformer, ParamGradients, ParamSlices};
 pub use kernel::set_max_dispatch_width;
 pub use raster::GpuRasterizer;
 pub use scan::GpuScan;
@@ -45,6 +48,18 @@ pub enum GpuError {
     /// wgpu's.
     #[error("reading back a GPU buffer failed: {0}")]
     Readback(String),
+    /// A buffer would exceed what the device can bind in one storage binding.
+    #[error(
+        "the GPU {what} buffer would need {bytes} bytes, above the device's limit of {limit} bytes per storage binding"
+    )]
+    TooLarge {
+        /// Which buffer.
+        what: &'static str,
+        /// Bytes it would need.
+        bytes: u64,
+        /// The device's `max_storage_buffer_binding_size` (or `max_buffer_size` if smaller).
+        limit: u64,
+    },
 }
 
 /// What the fast backward needs: float atomics, and subgroup sums that make them 8–32× fewer.

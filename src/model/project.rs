@@ -13,9 +13,9 @@ pub const NEAR_PLANE: f32 = 0.01;
 /// Screen-space dilation added to the diagonal of the 2D covariance (anti-aliasing low-pass).
 pub const LOW_PASS: f32 = 0.3;
 /// Gaussians whose opacity is below this cannot produce a visible alpha and are culled.
-const MIN_OPACITY: f32 = 1.0 / 255.0;
+pub(crate) const MIN_OPACITY: f32 = 1.0 / 255.0;
 /// The Jacobian is evaluated at x/z clamped to this multiple of tan(fov/2).
-const FOV_CLAMP: f32 = 1.3;
+pub(crate) const FOV_CLAMP: f32 = 1.3;
 
 /// Rotation matrix of a unit quaternion [w, x, y, z]. The formula is applied as is (no
 /// normalisation), so its derivatives are those of the polynomial entries.
