@@ -23,9 +23,17 @@ impl Rasterizer {
         let tiles_x = self.tiles_x();
         let height = d_color.len() / width.max(1);
         let background = self.background;
-        self.entry_grads.clear();
+        // Only the entries a tile walks (its first `tile_walked` ones) are written and read
+        // back, so the buffer needs no clearing.
         self.entry_grads
             .resize(self.bins.entry_count(), SplatGrad::default());
+        self.tile_walked.resize(self.bins.tile_offsets.len() - 1, 0);
+        self.tile_walked
+            .par_iter_mut()
+            .zip(self.contributors.par_chunks(TILE_PIXELS))
+            .for_each(|(walked, contributors)| {
+                *walked = contributors.iter().copied().max().unwrap_or(0)
+            });
 
         let bins = &self.bins;
         let packed = &self.packed;
@@ -54,14 +62,26 @@ impl Rasterizer {
             },
         );
 
-        // Reduce the per-(tile, splat) partial sums to one gradient per splat.
+        // Reduce the per-(tile, splat) partial sums to one gradient per splat, reading only
+        // the entries their tiles walked: pixels stop early, so most entries were never
+        // reached and their gradient is zero.
         let bins = &self.bins;
-        let entry_grads = &self.entry_grads;
+        let (entry_grads, tile_walked) = (&self.entry_grads, &self.tile_walked);
         grads.clear();
         grads.resize(splats.len(), SplatGrad::default());
         grads.par_iter_mut().enumerate().for_each(|(s, g)| {
-            for e in bins.splat_range(s) {
-                g.add(&entry_grads[bins.sorted_position[e] as usize]);
+            // A splat's entries follow its tile rectangle row by row.
+            let [x0, y0, x1, y1] = bins.rects[s];
+            let mut entry = bins.splat_range(s).start;
+            for ty in y0..y1 {
+                for tx in x0..x1 {
+                    let tile = ty as usize * tiles_x + tx as usize;
+                    let position = bins.sorted_position[entry];
+                    if position < bins.tile_offsets[tile] + tile_walked[tile] {
+                        g.add(&entry_grads[position as usize]);
+                    }
+                    entry += 1;
+                }
             }
         });
     }

@@ -12,7 +12,7 @@ pub struct TileBins {
     /// Number of tile rows: ⌈height / 16⌉.
     pub tiles_y: usize,
     /// Tile rectangle [x0, y0, x1, y1) per splat (empty for invisible splats).
-    rects: Vec<[u32; 4]>,
+    pub(super) rects: Vec<[u32; 4]>,
     /// Prefix sums of entries per splat: splat s owns entries `splat_offsets[s]..splat_offsets[s+1]`.
     splat_offsets: Vec<u32>,
     /// Entries sorted by tile then depth: the splat index of each.

@@ -130,6 +130,9 @@ pub struct Rasterizer {
     tile_color: Vec<f32>,
     /// Per-entry gradient partial sums (in tile-sorted entry order).
     entry_grads: Vec<SplatGrad>,
+    /// Per tile: how many of its entries the last backward pass walked (the largest
+    /// contributor count of its pixels); `entry_grads` beyond that are stale.
+    tile_walked: Vec<u32>,
     background: [f32; 3],
 }
 
@@ -172,6 +175,7 @@ impl Rasterizer {
             + bytes(&self.contributors)
             + bytes(&self.tile_color)
             + bytes(&self.entry_grads)
+            + bytes(&self.tile_walked)
     }
 
     fn tiles_x(&self) -> usize {

@@ -427,3 +427,29 @@ fn binning_matches_naive_per_tile_lists() {
         }
     }
 }
+
+/// A reused rasterizer gives exactly the gradients of a fresh one: buffers left over from an
+/// earlier, larger frame (entries never walked this time) are never read.
+#[test]
+fn reused_rasterizer_backward_equals_fresh_one() {
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let (w, h) = (83, 45);
+    let first = crowded_scene(&mut rng, 900, w, h);
+    let second = crowded_scene(&mut rng, 300, w, h);
+    let bg = [0.2, 0.1, 0.4];
+    let d_color: Vec<[f32; 3]> = (0..w * h)
+        .map(|_| [(); 3].map(|_| rng.random_range(-1.0..1.0)))
+        .collect();
+    let mut out = RenderOutput::default();
+    let mut reused = Rasterizer::new();
+    let mut grads = Vec::new();
+    reused.forward(&first, w, h, bg, &mut out);
+    reused.backward(&first, &d_color, w, &mut grads);
+    reused.forward(&second, w, h, bg, &mut out);
+    reused.backward(&second, &d_color, w, &mut grads);
+    let mut fresh = Rasterizer::new();
+    let mut expected = Vec::new();
+    fresh.forward(&second, w, h, bg, &mut out);
+    fresh.backward(&second, &d_color, w, &mut expected);
+    assert_eq!(grads, expected);
+}
