@@ -162,9 +162,13 @@ impl TileBins {
 }
 
 /// Bands of tile rows binned in parallel: a few per thread, so an uneven band does not hold
-/// the others up.
+/// the others up; one on a single thread, where every extra band rescans all splats for
+/// nothing.
 fn band_count() -> usize {
-    2 * rayon::current_num_threads()
+    match rayon::current_num_threads() {
+        1 => 1,
+        threads => 2 * threads,
+    }
 }
 
 /// Tile rows of band `band` whose chunk of per-tile values has `len` tiles.
