@@ -22,10 +22,10 @@ fn parameters(world: &mut World) -> Vec<(Position, Rotation, Scale, Opacity, Col
 /// Makes one rotation gradient NaN at iteration 6, between the backward pass and the guard
 /// (as a numerical fault in the backward maths would).
 fn poison_at_iteration_6(state: Res<TrainState>, mut grads: Query<&mut Grad<Rotation>>) {
-    if state.iteration == 6 {
-        if let Some(mut grad) = grads.iter_mut().nth(7) {
-            grad.0.c0[2] = f32::NAN;
-        }
+    if state.iteration == 6
+        && let Some(mut grad) = grads.iter_mut().nth(7)
+    {
+        grad.0.c0[2] = f32::NAN;
     }
 }
 

@@ -477,11 +477,10 @@ mod tests {
                 assert_grad("logit", g_logit, fd);
                 for k in 0..2 {
                     // Stay away from the kink of the width clamp.
-                    if let TemporalOpacity::Asymmetric { w_min } = model {
-                        if ((w_min * raw[k].exp()).ln() - ASYMMETRIC_MAX_WIDTH.ln()).abs() < 2.0 * h
-                        {
-                            continue;
-                        }
+                    if let TemporalOpacity::Asymmetric { w_min } = model
+                        && ((w_min * raw[k].exp()).ln() - ASYMMETRIC_MAX_WIDTH.ln()).abs() < 2.0 * h
+                    {
+                        continue;
                     }
                     let fd = central(
                         |v| {

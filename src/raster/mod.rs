@@ -212,15 +212,15 @@ pub fn exp_falloff(x: f32) -> f32 {
 #[inline(always)]
 fn prefetch_entry(splats: &[Packed], entries: &[u32], k: usize) {
     #[cfg(target_arch = "x86_64")]
-    if let Some(&s) = entries.get(k) {
-        if let Some(sp) = splats.get(s as usize) {
-            // SAFETY: a prefetch never faults and the pointer is in bounds.
-            unsafe {
-                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                    (sp as *const Packed).cast(),
-                )
-            };
-        }
+    if let Some(&s) = entries.get(k)
+        && let Some(sp) = splats.get(s as usize)
+    {
+        // SAFETY: a prefetch never faults and the pointer is in bounds.
+        unsafe {
+            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                (sp as *const Packed).cast(),
+            )
+        };
     }
     #[cfg(not(target_arch = "x86_64"))]
     let _ = (splats, entries, k);
