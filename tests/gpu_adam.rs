@@ -56,7 +56,12 @@ fn adam_parity<P: ParamGroup>(gpu: &GpuContext, adam: &GpuAdam, n: usize, steps:
     let (iterations, extent) = (settings.train.iterations, settings.extent);
     let mut world = World::new();
     world.insert_resource(settings);
-    world.insert_resource(TrainState::default());
+    // At SH degree 3 every colour coefficient is active, so the CPU updates every slot the
+    // GPU kernel does (below the top degree it leaves the zero-gradient ones alone).
+    world.insert_resource(TrainState {
+        sh_degree: 3,
+        ..Default::default()
+    });
     let entities: Vec<Entity> = (0..n)
         .map(|_| {
             let adam = Adam::<P> {
