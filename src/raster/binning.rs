@@ -86,7 +86,8 @@ impl TileBins {
 
         // Entries per tile. Tile rows are split into bands, one task each; a band counts and
         // later fills only its own tiles, so the bands never write the same place.
-        let tiles_per_band = self.tiles_x * self.tiles_y.div_ceil(band_count()).max(1);
+        // At least 1: an image without tiles (zero width or height) has no chunks anyway.
+        let tiles_per_band = (self.tiles_x * self.tiles_y.div_ceil(band_count())).max(1);
         let (tiles_x, rects) = (self.tiles_x, &self.rects);
         self.tile_fill.clear();
         self.tile_fill.resize(tile_count + 1, 0);
