@@ -12,6 +12,7 @@ pub mod densify;
 pub mod describe;
 pub mod guard;
 pub mod loss;
+pub mod resident;
 pub mod sample_view;
 pub mod splat;
 pub mod time_warp;
@@ -74,7 +75,8 @@ pub fn add_training_systems(schedule: &mut Schedule) {
     add_gradient_systems(schedule);
     // A NaN or infinity found after the backward pass must not reach the parameters.
     schedule.configure_sets((Adam, Densify).run_if(guard::healthy));
-    schedule.add_systems(adam::adam_systems().in_set(Adam));
+    schedule.add_systems(adam::adam_systems().run_if(resident::on_cpu).in_set(Adam));
+    schedule.add_systems(resident::adam.run_if(resident::on_gpu).in_set(Adam));
     schedule.add_systems(densify::densify_systems().in_set(Densify));
 }
 
@@ -84,8 +86,9 @@ pub fn add_render_systems(schedule: &mut Schedule) {
     use TrainSet::*;
     schedule.configure_sets((TimeWarp, Deform, Splat).chain());
     schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
-    schedule.add_systems(deform::deform.in_set(Deform));
-    schedule.add_systems(splat::splat.in_set(Splat));
+    schedule.add_systems(deform::deform.run_if(resident::on_cpu).in_set(Deform));
+    schedule.add_systems(splat::splat.run_if(resident::on_cpu).in_set(Splat));
+    schedule.add_systems(resident::forward.run_if(resident::on_gpu).in_set(Splat));
 }
 
 /// Adds the loss and backward stages (after splatting).
@@ -107,8 +110,10 @@ pub fn add_backward_systems(schedule: &mut Schedule) {
             guard::check_gradients,
         )
             .chain()
+            .run_if(resident::on_cpu)
             .in_set(Backward),
     );
+    schedule.add_systems(resident::backward.run_if(resident::on_gpu).in_set(Backward));
 }
 
 /// The schedule of one training iteration.

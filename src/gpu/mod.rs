@@ -13,6 +13,7 @@
 mod adam;
 mod deform;
 mod kernel;
+mod pipeline;
 mod raster;
 mod scan;
 mod sort;
@@ -21,6 +22,7 @@ mod stats;
 pub use adam::{GpuAdam, GpuParamGroup};
 pub use deform::{DeformSettings, GpuDeformer, ParamGradients, ParamSlices};
 pub use kernel::set_max_dispatch_width;
+pub use pipeline::{GpuTraining, GradientFault, ResidentState, SECTION_NAMES};
 pub use raster::GpuRasterizer;
 pub use scan::GpuScan;
 pub use sort::{BinBuffers, BinReadback, GpuBinner, GpuRadixSort, SplatBox};
