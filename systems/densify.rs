@@ -228,11 +228,11 @@ pub fn densify_systems() -> ScheduleConfigs<ScheduleSystem> {
     use super::resident;
     (
         accumulate_stats.run_if(densifying).run_if(resident::on_cpu),
-        resident::accumulate_stats
+        resident::resident_stats
             .run_if(densifying)
             .run_if(resident::on_gpu),
         // The components are the truth again before they change.
-        resident::sync
+        resident::resident_sync
             .run_if(resident::on_gpu)
             .run_if(densify_step.or_else(opacity_reset_step)),
         densify_and_prune.run_if(densify_step),

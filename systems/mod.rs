@@ -4,6 +4,11 @@
 //!
 //! Each stage is a [`TrainSet`]; [`training_schedule`] chains the sets once. Structural changes
 //! (spawn on clone/split, despawn on prune) happen only in [`TrainSet::Densify`].
+//!
+//! With a [`crate::gpu::GpuTraining`] resource (`backend: Gpu`) the [`resident`] systems run in
+//! the Splat, Backward, Adam and Densify sets instead of the CPU deformation, splatting,
+//! backward, guard, Adam and statistics systems (run conditions [`resident::on_gpu`] and
+//! [`resident::on_cpu`]); sample view, time warp, loss and densification stay on the CPU.
 
 pub mod adam;
 pub mod backward;
@@ -76,7 +81,11 @@ pub fn add_training_systems(schedule: &mut Schedule) {
     // A NaN or infinity found after the backward pass must not reach the parameters.
     schedule.configure_sets((Adam, Densify).run_if(guard::healthy));
     schedule.add_systems(adam::adam_systems().run_if(resident::on_cpu).in_set(Adam));
-    schedule.add_systems(resident::adam.run_if(resident::on_gpu).in_set(Adam));
+    schedule.add_systems(
+        resident::resident_adam
+            .run_if(resident::on_gpu)
+            .in_set(Adam),
+    );
     schedule.add_systems(densify::densify_systems().in_set(Densify));
 }
 
@@ -88,7 +97,11 @@ pub fn add_render_systems(schedule: &mut Schedule) {
     schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
     schedule.add_systems(deform::deform.run_if(resident::on_cpu).in_set(Deform));
     schedule.add_systems(splat::splat.run_if(resident::on_cpu).in_set(Splat));
-    schedule.add_systems(resident::forward.run_if(resident::on_gpu).in_set(Splat));
+    schedule.add_systems(
+        resident::resident_forward
+            .run_if(resident::on_gpu)
+            .in_set(Splat),
+    );
 }
 
 /// Adds the loss and backward stages (after splatting).
@@ -113,7 +126,11 @@ pub fn add_backward_systems(schedule: &mut Schedule) {
             .run_if(resident::on_cpu)
             .in_set(Backward),
     );
-    schedule.add_systems(resident::backward.run_if(resident::on_gpu).in_set(Backward));
+    schedule.add_systems(
+        resident::resident_backward
+            .run_if(resident::on_gpu)
+            .in_set(Backward),
+    );
 }
 
 /// The schedule of one training iteration.

@@ -2,9 +2,9 @@
 //! present these systems run in place of the CPU deformation, splatting, backward, guard, Adam
 //! and statistics systems (which are skipped by [`on_cpu`]), in the same [`super::TrainSet`]s.
 //!
-//! The ECS components are the truth only after [`sync`]: it runs before densification and
+//! The ECS components are the truth only after [`resident_sync`]: it runs before densification and
 //! opacity resets (and [`sync_world`] before checkpoints, export and evaluation) and marks the
-//! GPU copy stale, so the next [`forward`] uploads the components again.
+//! GPU copy stale, so the next [`resident_forward`] uploads the components again.
 
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
@@ -62,7 +62,7 @@ pub fn on_gpu(gpu: Option<Res<GpuTraining>>) -> bool {
     gpu.is_some()
 }
 
-/// Host scratch of [`forward`].
+/// Host scratch of [`resident_forward`].
 #[derive(Default)]
 pub struct ForwardScratch {
     sections: [[Vec<f32>; 7]; 3],
@@ -74,7 +74,7 @@ pub struct ForwardScratch {
 /// [`SplatSlot`]), then deforms, projects, bins and blends the sampled view on the GPU into
 /// [`SplatBuffers::render`].
 #[allow(clippy::too_many_arguments)]
-pub fn forward(
+pub fn resident_forward(
     settings: Res<Settings>,
     state: Res<TrainState>,
     sample: Res<ViewSample>,
@@ -139,7 +139,7 @@ pub fn forward(
 
 /// Back-propagates [`LossImage::d_color`] on the GPU into the resident gradients and records a
 /// [`NumericFault`] when the loss or a gradient is not finite (the guard of the CPU schedule).
-pub fn backward(
+pub fn resident_backward(
     state: Res<TrainState>,
     loss: Res<LossImage>,
     mut fault: ResMut<NumericFault>,
@@ -165,7 +165,11 @@ pub fn backward(
 }
 
 /// One Adam step of every parameter group on the GPU.
-pub fn adam(settings: Res<Settings>, state: Res<TrainState>, mut gpu: ResMut<GpuTraining>) {
+pub fn resident_adam(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    mut gpu: ResMut<GpuTraining>,
+) {
     let lr = &settings.train.lr;
     let plr = position_lr(
         lr,
@@ -195,13 +199,13 @@ pub fn adam(settings: Res<Settings>, state: Res<TrainState>, mut gpu: ResMut<Gpu
 }
 
 /// Adds this iteration's view to the resident densification statistics.
-pub fn accumulate_stats(settings: Res<Settings>, mut gpu: ResMut<GpuTraining>) {
+pub fn resident_stats(settings: Res<Settings>, mut gpu: ResMut<GpuTraining>) {
     gpu.accumulate_stats(&StatsConfig::from_settings(&settings));
 }
 
 /// Reads the parameters, Adam moments and statistics back into the components (by
 /// [`SplatSlot`]) and marks the GPU copy stale.
-pub fn sync(
+pub fn resident_sync(
     mut gpu: ResMut<GpuTraining>,
     mut gaussians: Query<(ResidentMuts, &mut GradAccum, &SplatSlot)>,
     mut state: Local<ResidentState>,
@@ -242,11 +246,11 @@ pub fn sync(
     Ok(())
 }
 
-/// Runs [`sync`] on `world` when it trains on the GPU-resident pipeline (a no-op otherwise):
+/// Runs [`resident_sync`] on `world` when it trains on the GPU-resident pipeline (a no-op otherwise):
 /// call it before reading parameters, moments or statistics from the components.
 pub fn sync_world(world: &mut World) -> Result {
     if world.contains_resource::<GpuTraining>() {
-        let result: std::result::Result<(), _> = world.run_system_once(sync);
+        let result: std::result::Result<(), _> = world.run_system_once(resident_sync);
         result.map_err(|e| std::io::Error::other(e.to_string()))?;
     }
     Ok(())

@@ -17,8 +17,8 @@
 //! bound and the largest screen radius to 1e-3 relative (it comes from ln and sqrt of the
 //! opacity and covariance).
 //!
-//! Checked by hand to fail: Adam's offset ignored for the later sections, the pack kernel's
-//! min_power sign flipped, the statistics reading the Opacity section instead of Temporal.
+//! Checked by hand to fail: Adam's section offset ignored, the statistics reading the Opacity
+//! section instead of Temporal, the gradient check reporting the last offending index.
 
 #[path = "common/gpu.rs"]
 mod gpu;
@@ -292,9 +292,11 @@ fn resident_training_with_densification_tracks_the_cpu() {
     }
 }
 
-/// The gradient check reports the first non-finite gradient: a NaN in dL/dcolour under
-/// the splats reaches their gradients (`systems::resident::backward` turns the report into
-/// the schedule's `NumericFault`, which stops Adam).
+/// The gradient check reports the first non-finite gradient: an infinite dL/dcolour under the
+/// splats reaches their parameter gradients, and the check names the first one
+/// (`systems::resident::resident_backward` turns the report into the schedule's
+/// `NumericFault`, which stops Adam). A NaN in dL/dcolour at covered pixels did not reach the
+/// parameter gradients on lavapipe (the blending backward lost it), hence the infinity.
 #[test]
 fn non_finite_gradients_are_caught() {
     let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
