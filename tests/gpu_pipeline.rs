@@ -18,7 +18,7 @@
 //! opacity and covariance).
 //!
 //! Checked by hand to fail: Adam's section offset ignored, the statistics reading the Opacity
-//! section instead of Temporal, the gradient check reporting the last offending index.
+//! section instead of Temporal, the gradient check taking the maximum index (so never tripping).
 
 #[path = "common/gpu.rs"]
 mod gpu;
@@ -354,7 +354,8 @@ fn non_finite_gradients_are_caught() {
         .iter()
         .position(|g| !g.0.values().iter().all(|v| v.is_finite()));
     eprintln!("infinite dL/dcolour: {fault:?}; first non-finite position gradient {first:?}");
-    if let Some(first) = first {
+    let first = first.expect("an infinite dL/dcolour reaches the position gradients");
+    {
         assert_eq!(
             fault,
             Some(tadgs::gpu::GradientFault {
