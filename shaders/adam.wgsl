@@ -1,7 +1,9 @@
 // One Adam step on a parameter group stored as flat f32 arrays (systems/adam.rs::adam_step):
 // element i has the learning-rate slot i % stride (the component's field layout). The host
 // passes the step size of each slot already divided by the bias correction 1 − β1^step, and
-// the constants as the CPU computes them in f32.
+// the constants as the CPU computes them in f32. Element i of the step is element
+// `offset + i` of the bound arrays, so one call can update a section of a larger buffer (the
+// resident parameters of src/gpu/pipeline.rs); the slot is still i % stride.
 
 struct AdamParams {
     len: u32,
@@ -14,6 +16,10 @@ struct AdamParams {
     // 1 − β2^step.
     bias2: f32,
     epsilon: f32,
+    offset: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: AdamParams;
@@ -33,11 +39,12 @@ fn adam(
     if i >= params.len {
         return;
     }
-    let g = grads[i];
-    let m_i = params.beta1 * m[i] + params.one_minus_beta1 * g;
-    let v_i = params.beta2 * v[i] + params.one_minus_beta2 * g * g;
-    m[i] = m_i;
-    v[i] = v_i;
+    let j = params.offset + i;
+    let g = grads[j];
+    let m_i = params.beta1 * m[j] + params.one_minus_beta1 * g;
+    let v_i = params.beta2 * v[j] + params.one_minus_beta2 * g * g;
+    m[j] = m_i;
+    v[j] = v_i;
     let step_size = step_sizes[i % params.stride];
-    values[i] -= step_size * m_i / (sqrt(v_i / params.bias2) + params.epsilon);
+    values[j] -= step_size * m_i / (sqrt(v_i / params.bias2) + params.epsilon);
 }

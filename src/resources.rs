@@ -175,7 +175,8 @@ pub enum Backend {
     /// The tile rasterizer on the CPU (rayon); the default.
     #[default]
     Cpu,
-    /// Blending runs on the [`crate::gpu::GpuRasterizer`] resource.
+    /// The whole iteration runs on the [`crate::gpu::GpuTraining`] resource (see
+    /// `systems::resident`).
     Gpu,
 }
 

@@ -16,7 +16,7 @@ use crate::data::init::{
 };
 use crate::data::pointcloud::read_point_cloud;
 use crate::data::{Camera, DataError, Dataset};
-use crate::gpu::{GpuError, GpuRasterizer};
+use crate::gpu::{GpuError, GpuTraining};
 use crate::io::checkpoint::Checkpoint;
 use crate::io::image::Image;
 use crate::io::model::Model;
@@ -43,7 +43,7 @@ pub fn init_task_pool() {
 
 /// Inserts every resource the tadgs systems read into `world`.
 ///
-/// With `backend: Gpu` this opens the GPU (see [`GpuRasterizer::new`]); that is the one way it
+/// With `backend: Gpu` this opens the GPU (see [`GpuTraining::new`]); that is the one way it
 /// can fail.
 pub fn insert_resources(
     world: &mut World,
@@ -91,7 +91,9 @@ pub fn insert_render_resources(
     match scene.train.backend {
         crate::scene::BackendKind::Cpu => world.insert_resource(Backend::Cpu),
         crate::scene::BackendKind::Gpu => {
-            let gpu = GpuRasterizer::new()?;
+            // The whole iteration on the GPU with resident buffers; the blending-only
+            // `GpuRasterizer` resource remains available to custom worlds.
+            let gpu = GpuTraining::new()?;
             tracing::info!("GPU backend: {}", gpu.describe());
             world.insert_resource(gpu);
             world.insert_resource(Backend::Gpu)
@@ -378,6 +380,7 @@ impl Trainer {
 
     /// The run's full state for a checkpoint (`scene`: the settings it was started with).
     pub fn checkpoint(&mut self, scene: &SceneConfig, log: &TrainingLog) -> Checkpoint {
+        self.sync();
         Checkpoint::from_world(&mut self.world, scene, log)
     }
 
@@ -394,6 +397,7 @@ impl Trainer {
     /// Normalised temporal lifespan ψ̄ of every Gaussian (see
     /// [`crate::model::deform::lifespan_fraction`]).
     pub fn lifespans(&mut self) -> Vec<f32> {
+        self.sync();
         let settings = self.world.resource::<Settings>().clone();
         self.world
             .query::<&Temporal>()
@@ -407,6 +411,18 @@ impl Trainer {
             world,
             train: training_schedule(),
             render: render_schedule(),
+        }
+    }
+
+    /// Brings the components up to date with the GPU-resident pipeline (a no-op on the CPU
+    /// backend): [`Trainer::checkpoint`], [`Trainer::model`] and [`Trainer::lifespans`] call
+    /// it; call it before reading parameters, moments or statistics from [`Trainer::world`].
+    ///
+    /// # Panics
+    /// If the GPU readback fails (the device was lost).
+    pub fn sync(&mut self) {
+        if let Err(e) = crate::systems::resident::sync_world(&mut self.world) {
+            panic!("reading the GPU-resident training state back failed: {e}");
         }
     }
 
@@ -495,6 +511,7 @@ impl Trainer {
 
     /// The trained Gaussians and the SH degree reached.
     pub fn model(&mut self) -> Model {
+        self.sync();
         let sh_degree = self.state().sh_degree;
         let settings = self.world.resource::<Settings>();
         let (frame_count, config) = (settings.frame_count, settings.model.clone());

@@ -4,6 +4,11 @@
 //!
 //! Each stage is a [`TrainSet`]; [`training_schedule`] chains the sets once. Structural changes
 //! (spawn on clone/split, despawn on prune) happen only in [`TrainSet::Densify`].
+//!
+//! With a [`crate::gpu::GpuTraining`] resource (`backend: Gpu`) the [`resident`] systems run in
+//! the Splat, Backward, Adam and Densify sets instead of the CPU deformation, splatting,
+//! backward, guard, Adam and statistics systems (run conditions [`resident::on_gpu`] and
+//! [`resident::on_cpu`]); sample view, time warp, loss and densification stay on the CPU.
 
 pub mod adam;
 pub mod backward;
@@ -12,6 +17,7 @@ pub mod densify;
 pub mod describe;
 pub mod guard;
 pub mod loss;
+pub mod resident;
 pub mod sample_view;
 pub mod splat;
 pub mod time_warp;
@@ -74,7 +80,12 @@ pub fn add_training_systems(schedule: &mut Schedule) {
     add_gradient_systems(schedule);
     // A NaN or infinity found after the backward pass must not reach the parameters.
     schedule.configure_sets((Adam, Densify).run_if(guard::healthy));
-    schedule.add_systems(adam::adam_systems().in_set(Adam));
+    schedule.add_systems(adam::adam_systems().run_if(resident::on_cpu).in_set(Adam));
+    schedule.add_systems(
+        resident::resident_adam
+            .run_if(resident::on_gpu)
+            .in_set(Adam),
+    );
     schedule.add_systems(densify::densify_systems().in_set(Densify));
 }
 
@@ -84,8 +95,13 @@ pub fn add_render_systems(schedule: &mut Schedule) {
     use TrainSet::*;
     schedule.configure_sets((TimeWarp, Deform, Splat).chain());
     schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
-    schedule.add_systems(deform::deform.in_set(Deform));
-    schedule.add_systems(splat::splat.in_set(Splat));
+    schedule.add_systems(deform::deform.run_if(resident::on_cpu).in_set(Deform));
+    schedule.add_systems(splat::splat.run_if(resident::on_cpu).in_set(Splat));
+    schedule.add_systems(
+        resident::resident_forward
+            .run_if(resident::on_gpu)
+            .in_set(Splat),
+    );
 }
 
 /// Adds the loss and backward stages (after splatting).
@@ -107,6 +123,12 @@ pub fn add_backward_systems(schedule: &mut Schedule) {
             guard::check_gradients,
         )
             .chain()
+            .run_if(resident::on_cpu)
+            .in_set(Backward),
+    );
+    schedule.add_systems(
+        resident::resident_backward
+            .run_if(resident::on_gpu)
             .in_set(Backward),
     );
 }

@@ -1,5 +1,6 @@
-//! The GPU backend inside the training schedule: the same systems, blending on the GPU, give
-//! the CPU backend's render and parameter gradients, and train to the same quality.
+//! The GPU backend inside the training schedule: the same systems, blending on the GPU
+//! (`GpuRasterizer`), give the CPU backend's render and parameter gradients, and `backend: Gpu`
+//! (the GPU-resident pipeline, `GpuTraining`) trains to the same quality as the CPU.
 
 #[path = "common/gpu.rs"]
 mod gpu;
@@ -11,7 +12,7 @@ use tadgs::components::*;
 use tadgs::data::Dataset;
 use tadgs::data::synthetic::demo_scene;
 use tadgs::gpu::GpuRasterizer;
-use tadgs::resources::{SplatBuffers, TrainState, ViewSample};
+use tadgs::resources::{Backend, SplatBuffers, TrainState, ViewSample};
 use tadgs::scene::{BackendKind, DataSource, SceneConfig};
 use tadgs::systems::gradient_schedule;
 use tadgs::train::{Trainer, insert_resources, spawn_initial_gaussians};
@@ -32,9 +33,15 @@ fn small_scene() -> (SceneConfig, Arc<Dataset>) {
 /// A world of the small scene on `backend`, looking at training view 5 with SH degree 3.
 fn world_on(backend: BackendKind, config: &SceneConfig, dataset: &Arc<Dataset>) -> World {
     let mut config = config.clone();
-    config.train.backend = backend;
+    // The blending-only GPU path: `backend: Gpu` now opens the resident pipeline, which
+    // leaves the gradients on the GPU (tests/gpu_pipeline.rs covers it).
+    config.train.backend = BackendKind::Cpu;
     let mut world = World::new();
     insert_resources(&mut world, &config, dataset.clone()).expect("backend opens");
+    if backend == BackendKind::Gpu {
+        world.insert_resource(GpuRasterizer::new().expect("GPU opens"));
+        world.insert_resource(Backend::Gpu);
+    }
     spawn_initial_gaussians(&mut world, &config).expect("random points initialise");
     world.resource_mut::<TrainState>().sh_degree = 3;
     let view = &dataset.train[5];

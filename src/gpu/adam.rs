@@ -21,6 +21,9 @@ struct AdamParams {
     one_minus_beta2: f32,
     bias2: f32,
     epsilon: f32,
+    /// First element of the step in the bound arrays.
+    offset: u32,
+    pad: [u32; 3],
 }
 
 /// One parameter group on the GPU: values, gradients and Adam moments as flat `f32` arrays,
@@ -184,41 +187,69 @@ impl GpuAdam {
     /// If `rates` has not one rate per slot of the stride.
     pub fn step(&self, group: &mut GpuParamGroup, rates: &[f32], iteration: u32) {
         assert_eq!(rates.len(), group.stride, "one learning rate per slot");
+        let [values, grads, m, v] =
+            [&group.values, &group.grads, &group.m, &group.v].map(|b| &b.buffer);
+        let mut uniforms = AdamUniforms {
+            params: &mut group.params,
+            step_sizes: &mut group.step_sizes,
+            host: &mut group.host_step_sizes,
+        };
+        self.step_range(
+            &mut uniforms,
+            [values, grads, m, v],
+            0..group.len,
+            rates,
+            iteration,
+        );
+    }
+
+    /// One Adam step on the elements `range` of `[values, grads, m, v]` (each at least
+    /// `range.end` values long), element `range.start + i` with the rate `rates[i % stride]`,
+    /// `stride = rates.len()`. Submits the work without waiting for it.
+    pub(super) fn step_range(
+        &self,
+        uniforms: &mut AdamUniforms<'_>,
+        [values, grads, m, v]: [&wgpu::Buffer; 4],
+        range: std::ops::Range<usize>,
+        rates: &[f32],
+        iteration: u32,
+    ) {
         let step = iteration.max(1) as i32;
         let bias1 = 1.0 - BETA1.powi(step);
         let bias2 = 1.0 - BETA2.powi(step);
-        group.host_step_sizes.clear();
-        group
-            .host_step_sizes
-            .extend(rates.iter().map(|rate| rate / bias1));
-        group.step_sizes.upload(&self.gpu, &group.host_step_sizes);
-        group.params.upload(
+        uniforms.host.clear();
+        uniforms.host.extend(rates.iter().map(|rate| rate / bias1));
+        uniforms.step_sizes.upload(&self.gpu, uniforms.host);
+        let len = range.len();
+        uniforms.params.upload(
             &self.gpu,
             &[AdamParams {
-                len: group.len as u32,
-                stride: group.stride as u32,
+                len: len as u32,
+                stride: rates.len() as u32,
                 beta1: BETA1,
                 beta2: BETA2,
                 one_minus_beta1: 1.0 - BETA1,
                 one_minus_beta2: 1.0 - BETA2,
                 bias2,
                 epsilon: EPSILON,
+                offset: range.start as u32,
+                pad: [0; 3],
             }],
         );
-        if group.len == 0 {
+        if len == 0 {
             return;
         }
-        let bytes = 4 * group.len as u64;
+        let bytes = 4 * range.end as u64;
         let bind_group = bind(
             &self.gpu.device,
             &self.pipeline,
             vec![
-                (0, group.params.buffer.as_entire_binding()),
-                (1, group.step_sizes.binding()),
-                (2, storage(&group.grads.buffer, bytes)),
-                (3, storage(&group.values.buffer, bytes)),
-                (4, storage(&group.m.buffer, bytes)),
-                (5, storage(&group.v.buffer, bytes)),
+                (0, uniforms.params.buffer.as_entire_binding()),
+                (1, uniforms.step_sizes.binding()),
+                (2, storage(grads, bytes)),
+                (3, storage(values, bytes)),
+                (4, storage(m, bytes)),
+                (5, storage(v, bytes)),
             ],
         );
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
@@ -226,8 +257,15 @@ impl GpuAdam {
             &mut encoder,
             &self.pipeline,
             &bind_group,
-            groups_for(group.len as u32),
+            groups_for(len as u32),
         );
         self.gpu.queue.submit([encoder.finish()]);
     }
+}
+
+/// The uniform and step-size buffers of one Adam call (and the host scratch filling them).
+pub(super) struct AdamUniforms<'a> {
+    pub(super) params: &'a mut GrowBuffer,
+    pub(super) step_sizes: &'a mut GrowBuffer,
+    pub(super) host: &'a mut Vec<f32>,
 }

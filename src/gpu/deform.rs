@@ -44,7 +44,7 @@ const WORKGROUP: u32 = 64;
 const MAX_GROUPS: u32 = 65_535;
 
 /// f32 values per Gaussian in each parameter component, in section order.
-const WIDTHS: [usize; 7] = [
+pub(super) const WIDTHS: [usize; 7] = [
     size_of::<Position>() / 4,
     size_of::<Fourier>() / 4,
     size_of::<Temporal>() / 4,
@@ -54,7 +54,7 @@ const WIDTHS: [usize; 7] = [
     size_of::<Color>() / 4,
 ];
 /// f32 values per Gaussian over all components (`PREFIX_COLOR + WIDTH_COLOR` in the shaders).
-const PARAM_FLOATS: usize = 97;
+pub(super) const PARAM_FLOATS: usize = 97;
 const _: () = {
     let mut sum = 0;
     let mut i = 0;
@@ -129,7 +129,7 @@ impl ParamSlices<'_> {
     }
 
     /// Each component as raw bytes, in section order.
-    fn sections(&self) -> [&[u8]; 7] {
+    pub(super) fn sections(&self) -> [&[u8]; 7] {
         [
             bytemuck::cast_slice(self.position),
             bytemuck::cast_slice(self.fourier),
@@ -556,6 +556,72 @@ impl GpuDeformer {
         }));
         let gpu = &self.gpu;
         self.splat_grads.upload(gpu, &self.host_splat_grads);
+        self.dispatch_backward();
+    }
+
+    /// [`GpuDeformer::backward`] with the splat gradients already on the GPU: the first
+    /// [`GpuDeformer::len`] records of `splat_grads` (9 floats each: mean 2, conic 3, opacity,
+    /// colour 3, as [`super::GpuRasterizer::backward_resident`] leaves them).
+    ///
+    /// # Panics
+    /// Unless a forward pass ran since the parameters were uploaded.
+    pub fn backward_resident(&mut self, splat_grads: &wgpu::Buffer) {
+        assert!(
+            self.forwarded,
+            "GpuDeformer::backward needs a forward pass of the uploaded parameters"
+        );
+        let gpu = &self.gpu;
+        let bytes = (self.count * SPLAT_GRAD_FLOATS * 4) as u64;
+        self.splat_grads.reserve(&gpu.device, bytes);
+        if bytes > 0 {
+            let mut encoder = gpu.device.create_command_encoder(&Default::default());
+            encoder.copy_buffer_to_buffer(splat_grads, 0, &self.splat_grads.buffer, 0, bytes);
+            gpu.queue.submit([encoder.finish()]);
+        }
+        self.dispatch_backward();
+    }
+
+    /// The resident parameters, laid out section by section (see the module documentation).
+    pub(super) fn params_buffer(&self) -> &wgpu::Buffer {
+        &self.params.buffer
+    }
+
+    /// The resident parameter gradients (the parameters' layout).
+    pub(super) fn grads_buffer(&self) -> &wgpu::Buffer {
+        &self.grads.buffer
+    }
+
+    /// The projected splats of the last forward pass (16 floats each).
+    pub(super) fn splats_buffer(&self) -> &wgpu::Buffer {
+        &self.splats.buffer
+    }
+
+    /// The NDC gradient norms of the last backward pass.
+    pub(super) fn ndc_grad_norm_buffer(&self) -> &wgpu::Buffer {
+        &self.ndc_grad_norm.buffer
+    }
+
+    /// Reserves the parameter buffer for `count` Gaussians without writing it (the caller
+    /// fills it).
+    pub(super) fn reserve(&mut self, count: usize) -> Result<(), GpuError> {
+        self.reserve_params(count).map(|_| ())
+    }
+
+    /// Copies the resident parameters back (section by section, `count × width` values each).
+    pub(super) fn read_params(&mut self, out: &mut Vec<f32>) -> Result<(), GpuError> {
+        let bytes = (self.count * PARAM_FLOATS * 4) as u64;
+        read(
+            &self.gpu,
+            &mut self.staging,
+            &self.params.buffer,
+            bytes,
+            out,
+        )
+    }
+
+    fn dispatch_backward(&mut self) {
+        let n = self.count;
+        let gpu = &self.gpu;
         self.grads
             .reserve(&gpu.device, (n * PARAM_FLOATS * 4) as u64);
         self.ndc_grad_norm.reserve(&gpu.device, (n * 4) as u64);

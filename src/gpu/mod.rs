@@ -1,18 +1,31 @@
-//! GPU backend (wgpu): the splat rasterizer's forward and backward blending as WGSL compute
-//! passes (`shaders/raster_*.wgsl`), held to the CPU reference in `src/raster/` by parity tests.
+//! GPU backend (wgpu): every stage of a training iteration but view sampling, time warp, loss
+//! and densification as WGSL compute kernels (`shaders/`), each held to its CPU reference by
+//! parity tests.
 //!
-//! Projection, tile binning and the per-tile depth sort stay on the CPU (rayon) in the training
-//! schedule; the GPU runs the per-pixel work, which is most of an iteration's cost.
+//! What runs where with `backend: Gpu` ([`GpuTraining`], wired in by `systems::resident`):
 //!
-//! Kernels for the other stages, each held to its CPU reference by parity tests but not yet
-//! part of the schedule: tile binning with a portable radix sort ([`GpuBinner`],
-//! [`GpuRadixSort`], [`GpuScan`]), Adam ([`GpuAdam`]) and the densification statistics
-//! ([`GpuStats`]); and the per-Gaussian stages, deformation, projection and parameter gradients
-//! ([`GpuDeformer`], held to the CPU systems by `tests/gpu_deform.rs`).
+//! | stage | where |
+//! |---|---|
+//! | sample view, time warp (Δt' per Gaussian, uploaded: 8 bytes each) | CPU |
+//! | deformation + EWA projection ([`GpuDeformer`]) | GPU |
+//! | tile binning + depth sort ([`GpuBinner`], [`GpuRadixSort`], [`GpuScan`]) | GPU (one 4-byte readback: the entry count) |
+//! | forward blending ([`GpuRasterizer::forward_resident`]) | GPU; the image is read back |
+//! | loss 0.8·L1 + 0.2·D-SSIM and dL/dcolour | CPU; dL/dcolour is uploaded |
+//! | blending and parameter backward | GPU |
+//! | non-finite gradient check | GPU (4-byte readback) |
+//! | Adam ([`GpuAdam`], one dispatch per parameter section) | GPU |
+//! | densification statistics ([`GpuStats`]) | GPU |
+//! | clone / split / prune, opacity reset | CPU, after `resident_sync` reads back the parameters, moments and statistics; the next iteration uploads them again |
+//!
+//! Parameters, gradients, Adam moments and statistics stay on the device between
+//! densification steps. The blending-only path ([`GpuRasterizer`] as a resource: the CPU
+//! schedule with forward and backward blending on the GPU, splats and gradients crossing the
+//! bus every iteration) remains for worlds that insert it themselves.
 
 mod adam;
 mod deform;
 mod kernel;
+mod pipeline;
 mod raster;
 mod scan;
 mod sort;
@@ -21,6 +34,7 @@ mod stats;
 pub use adam::{GpuAdam, GpuParamGroup};
 pub use deform::{DeformSettings, GpuDeformer, ParamGradients, ParamSlices};
 pub use kernel::set_max_dispatch_width;
+pub use pipeline::{GpuTraining, GradientFault, ResidentState, SECTION_NAMES};
 pub use raster::GpuRasterizer;
 pub use scan::GpuScan;
 pub use sort::{BinBuffers, BinReadback, GpuBinner, GpuRadixSort, SplatBox};

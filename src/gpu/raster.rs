@@ -83,6 +83,9 @@ pub struct GpuRasterizer {
     host_grads: Vec<[f32; FIELDS]>,
     /// Tiles across and down of the last forward pass.
     tiles: (u32, u32),
+    /// (tile, splat) pairs and splats of the last forward pass.
+    entries: usize,
+    count: usize,
 }
 
 impl GpuRasterizer {
@@ -151,6 +154,8 @@ impl GpuRasterizer {
             host_rgba: Vec::new(),
             host_grads: Vec::new(),
             tiles: (0, 0),
+            entries: 0,
+            count: 0,
         }
     }
 
@@ -171,7 +176,7 @@ impl GpuRasterizer {
 
     /// Number of (tile, splat) pairs in the last forward pass.
     pub fn intersections(&self) -> usize {
-        self.bins.entry_count()
+        self.entries
     }
 
     /// Renders `splats` into a `width × height` image over `background` (see
@@ -186,18 +191,9 @@ impl GpuRasterizer {
     ) -> Result<(), GpuError> {
         self.bins.build(splats, width, height);
         self.tiles = (self.bins.tiles_x as u32, self.bins.tiles_y as u32);
-        let pixels = width * height;
+        (self.entries, self.count) = (self.bins.entry_count(), splats.len());
+        self.upload_params(width, height, background);
         let gpu = &self.gpu;
-        self.params.upload(
-            gpu,
-            &[Params {
-                width: width as u32,
-                height: height as u32,
-                tiles_x: self.tiles.0,
-                tiles_y: self.tiles.1,
-                background: [background[0], background[1], background[2], 0.0],
-            }],
-        );
         self.host_splats.clear();
         self.host_splats.extend(splats.iter().map(|s| GpuSplat {
             mean: s.mean2d.to_array(),
@@ -208,6 +204,80 @@ impl GpuRasterizer {
         self.splats.upload(gpu, &self.host_splats);
         self.sorted_splats.upload(gpu, &self.bins.sorted_splats);
         self.tile_offsets.upload(gpu, &self.bins.tile_offsets);
+        self.draw(width, height, out)
+    }
+
+    fn upload_params(&mut self, width: usize, height: usize, background: [f32; 3]) {
+        self.params.upload(
+            &self.gpu,
+            &[Params {
+                width: width as u32,
+                height: height as u32,
+                tiles_x: self.tiles.0,
+                tiles_y: self.tiles.1,
+                background: [background[0], background[1], background[2], 0.0],
+            }],
+        );
+    }
+
+    /// [`GpuRasterizer::forward`] of `count` splats already on the GPU: `splats` holds them
+    /// in the shaders' layout (`Splat` in `shaders/raster_common.wgsl`, 12 floats each) and
+    /// `binner` their bins ([`super::GpuBinner::bin`] for this image size). Only the image
+    /// comes back; the splats and bins are copied on the device for the backward pass
+    /// ([`GpuRasterizer::backward_resident`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_resident(
+        &mut self,
+        splats: &wgpu::Buffer,
+        count: usize,
+        binner: &super::GpuBinner,
+        width: usize,
+        height: usize,
+        background: [f32; 3],
+        out: &mut RenderOutput,
+    ) -> Result<(), GpuError> {
+        let (tx, ty) = binner.tiles();
+        self.tiles = (tx as u32, ty as u32);
+        (self.entries, self.count) = (binner.entry_count(), count);
+        self.upload_params(width, height, background);
+        let bins = binner.buffers();
+        let entry_bytes = 4 * self.entries as u64;
+        let device = &self.gpu.device;
+        let copies = [
+            (&mut self.splats, splats, (count * 48) as u64),
+            (&mut self.sorted_splats, bins.sorted_splats, entry_bytes),
+            (
+                &mut self.tile_offsets,
+                bins.tile_offsets,
+                4 * (tx * ty + 1) as u64,
+            ),
+            (
+                &mut self.splat_offsets,
+                bins.splat_offsets,
+                4 * (count + 1) as u64,
+            ),
+            (&mut self.sorted_position, bins.sorted_position, entry_bytes),
+        ];
+        let mut encoder = device.create_command_encoder(&Default::default());
+        for (target, source, bytes) in copies {
+            target.reserve(device, bytes);
+            if bytes > 0 {
+                encoder.copy_buffer_to_buffer(source, 0, &target.buffer, 0, bytes);
+            }
+        }
+        self.gpu.queue.submit([encoder.finish()]);
+        self.draw(width, height, out)
+    }
+
+    /// Blends the uploaded splats and bins into `out`.
+    fn draw(
+        &mut self,
+        width: usize,
+        height: usize,
+        out: &mut RenderOutput,
+    ) -> Result<(), GpuError> {
+        let pixels = width * height;
+        let gpu = &self.gpu;
         let rgba_bytes = (pixels * 16) as u64;
         self.rgba.reserve(&gpu.device, rgba_bytes);
         self.final_transmittance
@@ -253,18 +323,67 @@ impl GpuRasterizer {
         d_color: &[[f32; 3]],
         grads: &mut Vec<SplatGrad>,
     ) -> Result<(), GpuError> {
+        debug_assert_eq!(
+            splats.len(),
+            self.count,
+            "the splats of the last forward pass"
+        );
+        if !self.atomics {
+            self.splat_offsets
+                .upload(&self.gpu, self.bins.splat_offsets());
+            self.sorted_position
+                .upload(&self.gpu, &self.bins.sorted_position);
+        }
+        let grad_bytes = (self.count * FIELDS * 4) as u64;
+        self.staging.reserve(&self.gpu.device, grad_bytes);
+        let mut encoder = self.encode_backward(d_color);
+        if grad_bytes > 0 {
+            encoder.copy_buffer_to_buffer(
+                &self.splat_grads.buffer,
+                0,
+                &self.staging.buffer,
+                0,
+                grad_bytes,
+            );
+        }
         let gpu = &self.gpu;
-        let entries = self.bins.entry_count();
+        gpu.queue.submit([encoder.finish()]);
+        gpu.read_back(&self.staging.buffer, grad_bytes, &mut self.host_grads)?;
+
+        grads.clear();
+        grads.extend(self.host_grads.iter().map(|g| SplatGrad {
+            mean2d: glam::Vec2::new(g[0], g[1]),
+            conic: [g[2], g[3], g[4]],
+            opacity: g[5],
+            color: [g[6], g[7], g[8]],
+        }));
+        Ok(())
+    }
+
+    /// [`GpuRasterizer::backward`] after [`GpuRasterizer::forward_resident`]: the splat
+    /// gradients stay on the GPU, in the returned buffer (9 floats per splat: mean 2, conic
+    /// 3, opacity, colour 3, the layout of the deformer's splat gradients). Submits the work
+    /// without waiting for it.
+    pub fn backward_resident(&mut self, d_color: &[[f32; 3]]) -> &wgpu::Buffer {
+        let encoder = self.encode_backward(d_color);
+        self.gpu.queue.submit([encoder.finish()]);
+        &self.splat_grads.buffer
+    }
+
+    /// Uploads `d_color` and records the blending backward of the last forward pass into
+    /// the splat-gradient buffer (the bins' splat offsets and sorted positions must already
+    /// be on the GPU for the per-tile sums).
+    fn encode_backward(&mut self, d_color: &[[f32; 3]]) -> wgpu::CommandEncoder {
+        let gpu = &self.gpu;
+        let entries = self.entries;
+        let count = self.count;
         self.d_color.upload(gpu, d_color);
         let entry_bytes = (entries * FIELDS * 4) as u64;
         if !self.atomics {
-            self.splat_offsets.upload(gpu, self.bins.splat_offsets());
-            self.sorted_position.upload(gpu, &self.bins.sorted_position);
             self.entry_grads.reserve(&gpu.device, entry_bytes);
         }
-        let grad_bytes = (splats.len() * FIELDS * 4) as u64;
+        let grad_bytes = (count * FIELDS * 4) as u64;
         self.splat_grads.reserve(&gpu.device, grad_bytes);
-        self.staging.reserve(&gpu.device, grad_bytes);
 
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         // The shared bindings 0–6; binding 7 is what the shares are summed into.
@@ -302,7 +421,7 @@ impl GpuRasterizer {
                     &self.splat_grads,
                 ],
             );
-            let groups = (splats.len() as u32).div_ceil(REDUCE_GROUP);
+            let groups = (count as u32).div_ceil(REDUCE_GROUP);
             let across = groups.min(MAX_GROUPS);
             dispatch(
                 &mut encoder,
@@ -311,26 +430,7 @@ impl GpuRasterizer {
                 (across, groups.div_ceil(across.max(1))),
             );
         }
-        if grad_bytes > 0 {
-            encoder.copy_buffer_to_buffer(
-                &self.splat_grads.buffer,
-                0,
-                &self.staging.buffer,
-                0,
-                grad_bytes,
-            );
-        }
-        gpu.queue.submit([encoder.finish()]);
-        gpu.read_back(&self.staging.buffer, grad_bytes, &mut self.host_grads)?;
-
-        grads.clear();
-        grads.extend(self.host_grads.iter().map(|g| SplatGrad {
-            mean2d: glam::Vec2::new(g[0], g[1]),
-            conic: [g[2], g[3], g[4]],
-            opacity: g[5],
-            color: [g[6], g[7], g[8]],
-        }));
-        Ok(())
+        encoder
     }
 }
 

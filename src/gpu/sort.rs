@@ -386,6 +386,24 @@ impl GpuBinner {
         self.run(boxes.len() as u32, width, height)
     }
 
+    /// The [`SplatBox`] buffer, sized for `count` boxes, for a kernel to fill before
+    /// [`GpuBinner::bin_resident`].
+    pub(super) fn boxes_for(&mut self, count: usize) -> &wgpu::Buffer {
+        self.splats
+            .reserve(&self.gpu.device, (count * size_of::<SplatBox>()) as u64);
+        &self.splats.buffer
+    }
+
+    /// [`GpuBinner::bin`] of the `count` boxes a kernel wrote into [`GpuBinner::boxes_for`].
+    pub(super) fn bin_resident(
+        &mut self,
+        count: usize,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
+        self.run(count as u32, width, height)
+    }
+
     fn run(&mut self, n: u32, width: usize, height: usize) -> Result<(), GpuError> {
         let gpu = self.gpu.clone();
         let device = &gpu.device;

@@ -185,6 +185,46 @@ impl GpuStats {
         self.opacity.upload(&self.gpu, opacity);
         self.grad_norm.upload(&self.gpu, grad_norm);
         self.temporal.upload(&self.gpu, temporal);
+        self.dispatch(config);
+    }
+
+    /// [`GpuStats::accumulate`] from GPU buffers: `boxes` ([`SplatBox`]es), `opacity` and
+    /// `grad_norm` (one f32 per slot) and the [`Temporal`] components at byte `temporal.1` of
+    /// `temporal.0`, copied on the device. Submits the work without waiting for it.
+    pub(super) fn accumulate_resident(
+        &mut self,
+        config: &StatsConfig,
+        boxes: &wgpu::Buffer,
+        opacity: &wgpu::Buffer,
+        grad_norm: &wgpu::Buffer,
+        temporal: (&wgpu::Buffer, u64),
+    ) {
+        let n = self.count;
+        let device = &self.gpu.device;
+        let copies = [
+            (&mut self.splats, boxes, 0, n * size_of::<SplatBox>()),
+            (&mut self.opacity, opacity, 0, n * 4),
+            (&mut self.grad_norm, grad_norm, 0, n * 4),
+            (
+                &mut self.temporal,
+                temporal.0,
+                temporal.1,
+                n * size_of::<Temporal>(),
+            ),
+        ];
+        let mut encoder = device.create_command_encoder(&Default::default());
+        for (target, source, offset, bytes) in copies {
+            target.reserve(device, bytes as u64);
+            if bytes > 0 {
+                encoder.copy_buffer_to_buffer(source, offset, &target.buffer, 0, bytes as u64);
+            }
+        }
+        self.gpu.queue.submit([encoder.finish()]);
+        self.dispatch(config);
+    }
+
+    fn dispatch(&mut self, config: &StatsConfig) {
+        let n = self.count;
         self.params
             .upload(&self.gpu, &[StatsParams::new(config, n as u32)]);
         if n == 0 {
