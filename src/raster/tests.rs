@@ -373,7 +373,15 @@ fn tiled_rasterizer_matches_per_pixel_reference() {
 #[test]
 fn binning_matches_naive_per_tile_lists() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    for (w, h) in [(37, 29), (83, 45), (200, 75), (16, 200), (333, 17), (0, 40), (40, 0)] {
+    for (w, h) in [
+        (37, 29),
+        (83, 45),
+        (200, 75),
+        (16, 200),
+        (333, 17),
+        (0, 40),
+        (40, 0),
+    ] {
         let mut splats = crowded_scene(&mut rng, 300, w, h);
         // Equal depths exercise the index tie-break.
         for s in splats.iter_mut().step_by(7) {
