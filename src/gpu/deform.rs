@@ -335,18 +335,8 @@ impl GpuDeformer {
     pub fn with_context(gpu: GpuContext) -> Self {
         let device = &gpu.device;
         let pipeline = |label: &str, source: &str| {
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(label),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
-            });
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(label),
-                layout: None,
-                module: &module,
-                entry_point: Some(label),
-                compilation_options: Default::default(),
-                cache: None,
-            })
+            let [pipeline] = super::kernel::pipelines(device, label, source, [label]);
+            pipeline
         };
         let deform = pipeline("deform", DEFORM_WGSL);
         let project = pipeline("project", PROJECT_WGSL);

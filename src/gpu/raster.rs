@@ -106,18 +106,8 @@ impl GpuRasterizer {
     pub fn with_context(gpu: GpuContext) -> Self {
         let device = &gpu.device;
         let pipeline = |label: &str, source: &str, entry: &str| {
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(label),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
-            });
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(label),
-                layout: None,
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
+            let [pipeline] = super::kernel::pipelines(device, label, source, [entry]);
+            pipeline
         };
         let forward = pipeline("raster_forward", FORWARD_WGSL, "forward");
         let atomics = device.features().contains(FLOAT_ATOMIC_FEATURES);
