@@ -1,39 +1,55 @@
 //! CPU against GPU (wgpu) on the fixed benchmark scene (see `tadgs::bench`) at 100k Gaussians
-//! and 640×360: a whole training iteration, and blending alone (forward + backward) on the CPU
-//! rasterizer and on each GPU backward path. GPU benches are skipped with a message where no
+//! and 640×360: a whole training iteration on the CPU schedule and on the GPU-resident one
+//! (`backend: Gpu`), and blending alone (forward + backward) on the CPU rasterizer and on each
+//! GPU backward path. GPU benches are skipped with a message where no
 //! adapter opens. On Mesa's lavapipe (a CPU driver) this checks that the GPU path runs, not
 //! its speed.
 
-use criterion::{Criterion, criterion_group, criterion_main};
-use tadgs::bench::benchmark_world;
-use tadgs::gpu::{GpuError, GpuRasterizer};
+use std::time::Duration;
+
+use criterion::{
+    BenchmarkGroup, Criterion, criterion_group, criterion_main, measurement::WallTime,
+};
+use tadgs::bench::{benchmark_world, benchmark_world_on};
+use tadgs::gpu::{GpuError, GpuRasterizer, GpuTraining};
 use tadgs::raster::{Rasterizer, RenderOutput};
-use tadgs::resources::{Backend, SplatBuffers};
+use tadgs::resources::SplatBuffers;
+use tadgs::scene::BackendKind;
 use tadgs::systems::{render_schedule, training_schedule};
 
 const N: usize = 100_000;
 const WIDTH: u32 = 640;
 const HEIGHT: u32 = 360;
 
+/// Criterion's smallest sample (10 runs): on a software driver one run takes many seconds.
+fn few_samples(group: &mut BenchmarkGroup<'_, WallTime>) {
+    group.sample_size(10);
+    group.warm_up_time(Duration::from_secs(1));
+    group.measurement_time(Duration::from_secs(5));
+}
+
+/// A whole training iteration (view, time warp, deformation, projection, binning, blending,
+/// loss, backward, Adam, statistics) on each backend, after two warm-up iterations.
 fn bench_iteration(c: &mut Criterion) {
     let mut group = c.benchmark_group("train_iteration_640x360");
-    group.sample_size(10);
-    for name in ["cpu", "gpu"] {
-        let mut world = benchmark_world(N, WIDTH, HEIGHT, false);
-        if name == "gpu" {
-            match GpuRasterizer::new() {
-                Ok(gpu) => {
-                    eprintln!("GPU backend: {}", gpu.describe());
-                    world.insert_resource(gpu);
-                    world.insert_resource(Backend::Gpu);
-                }
-                Err(e) => {
-                    eprintln!("skipping the GPU backend: {e}");
-                    continue;
-                }
+    few_samples(&mut group);
+    for (name, backend) in [
+        ("cpu", BackendKind::Cpu),
+        ("gpu_resident", BackendKind::Gpu),
+    ] {
+        let mut world = match benchmark_world_on(N, WIDTH, HEIGHT, false, backend) {
+            Ok(world) => world,
+            Err(e) => {
+                eprintln!("skipping the {name} backend: {e}");
+                continue;
             }
+        };
+        if let Some(gpu) = world.get_resource::<GpuTraining>() {
+            eprintln!("GPU backend: {}", gpu.describe());
         }
         let mut schedule = training_schedule();
+        schedule.run(&mut world);
+        schedule.run(&mut world);
         group.bench_function(format!("{N}_gaussians_{name}"), |b| {
             b.iter(|| schedule.run(&mut world))
         });
@@ -50,7 +66,7 @@ fn bench_blending(c: &mut Criterion) {
     let mut out = RenderOutput::default();
     let mut grads = Vec::new();
     let mut group = c.benchmark_group("blend_forward_backward_640x360");
-    group.sample_size(10);
+    few_samples(&mut group);
     let mut cpu = Rasterizer::new();
     group.bench_function(format!("{N}_gaussians_cpu"), |b| {
         b.iter(|| {

@@ -14,7 +14,9 @@ fn add_shares(li: u32, entry: u32, values: array<f32, FIELDS>) {
     let base = FIELDS * sorted_splats[entry];
     for (var field = 0u; field < FIELDS; field++) {
         let sum = subgroupAdd(share[field]);
-        if first && sum != 0.0 {
+        // Skip exact zeros by their bits: a float comparison `sum != 0.0` is ordered, so a
+        // NaN sum would be skipped too and the gradient check would never see it.
+        if first && (bitcast<u32>(sum) << 1u) != 0u {
             atomicAdd(&splat_grads[base + field], sum);
         }
     }

@@ -17,12 +17,13 @@ use rand_distr::StandardNormal;
 
 use crate::components::*;
 use crate::data::{Camera, Dataset};
+use crate::gpu::{GpuError, GpuTraining};
 use crate::io::image::Image;
 use crate::model::deform::{FOURIER_TERMS, logit};
 use crate::model::sh::rgb_to_sh_dc;
-use crate::resources::{SplatBuffers, ViewSample};
-use crate::scene::{DataSource, SceneConfig};
-use crate::systems::{adam, backward, deform, loss, render_schedule, sample_view, splat};
+use crate::resources::{LossImage, SplatBuffers, ViewSample};
+use crate::scene::{BackendKind, DataSource, SceneConfig};
+use crate::systems::{adam, backward, deform, loss, render_schedule, resident, sample_view, splat};
 use crate::systems::{time_warp, training_schedule};
 use crate::train::insert_resources;
 
@@ -99,8 +100,20 @@ pub fn benchmark_gaussians(n: usize, seed: u64, motion: bool) -> Vec<GaussianPar
 }
 
 /// A training world on the benchmark scene: `n` Gaussians, one `width × height` view of a fixed
-/// target image, SH degree 0, no densification.
+/// target image, SH degree 0, no densification, on the CPU backend.
 pub fn benchmark_world(n: usize, width: u32, height: u32, motion: bool) -> World {
+    benchmark_world_on(n, width, height, motion, BackendKind::Cpu).expect("the CPU backend opens")
+}
+
+/// [`benchmark_world`] on `backend`; with [`BackendKind::Gpu`] the GPU-resident pipeline runs
+/// the iteration (as `backend: Gpu` does in a scene file), which fails where no GPU opens.
+pub fn benchmark_world_on(
+    n: usize,
+    width: u32,
+    height: u32,
+    motion: bool,
+    backend: BackendKind,
+) -> Result<World, GpuError> {
     let camera = benchmark_camera(width, height);
     let (w, h) = (width as usize, height as usize);
     let target = Image {
@@ -118,15 +131,16 @@ pub fn benchmark_world(n: usize, width: u32, height: u32, motion: bool) -> World
     config.model.sh_degree = 0;
     config.densify.until_iter = 0;
     config.densify.opacity_reset_interval = 0;
+    config.train.backend = backend;
     let mut world = World::new();
-    insert_resources(&mut world, &config, Arc::new(dataset)).expect("the CPU backend opens");
+    insert_resources(&mut world, &config, Arc::new(dataset))?;
     world.spawn_batch(
         benchmark_gaussians(n, 42, motion)
             .into_iter()
             .map(GaussianParams::bundle)
             .collect::<Vec<_>>(),
     );
-    world
+    Ok(world)
 }
 
 /// Median times of one stage, in milliseconds.
@@ -150,8 +164,12 @@ pub struct BenchReport {
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
-    /// Splats drawn (projected inside the image).
-    pub visible: usize,
+    /// The backend that ran the iteration.
+    pub backend: BackendKind,
+    /// The GPU adapter, with the GPU backend.
+    pub device: Option<String>,
+    /// Splats drawn (projected inside the image); not read back from a GPU.
+    pub visible: Option<usize>,
     /// (tile, splat) pairs.
     pub intersections: usize,
     /// Median times per stage, in the order measured.
@@ -205,11 +223,153 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// Wall and CPU milliseconds of each stage, in the order first recorded.
+#[derive(Default)]
+struct Samples(Vec<(&'static str, Vec<f64>, Vec<f64>)>);
+
+impl Samples {
+    fn record(&mut self, stage: &'static str, (ms, cpu): (f64, f64)) {
+        match self.0.iter_mut().find(|s| s.0 == stage) {
+            Some(s) => {
+                s.1.push(ms);
+                s.2.push(cpu);
+            }
+            None => self.0.push((stage, vec![ms], vec![cpu])),
+        }
+    }
+
+    /// Times `f` run once on `world`.
+    fn stage(&mut self, world: &mut World, stage: &'static str, f: impl FnOnce(&mut World)) {
+        self.record(stage, time_ms(|| f(world)));
+    }
+
+    /// Times `f` (which runs a GPU stage) on `world` until the device has finished its work.
+    fn gpu_stage(
+        &mut self,
+        world: &mut World,
+        stage: &'static str,
+        f: impl FnOnce(&mut World) -> bevy_ecs::error::Result,
+    ) -> Result<(), GpuError> {
+        let mut result = Ok(());
+        let time = time_ms(|| {
+            result = match f(world) {
+                Ok(()) => world.resource::<GpuTraining>().wait(),
+                Err(e) => Err(GpuError::Readback(e.to_string())),
+            };
+        });
+        self.record(stage, time);
+        result
+    }
+
+    fn medians(self) -> Vec<StageTime> {
+        self.0
+            .into_iter()
+            .map(|(stage, wall, cpu)| StageTime {
+                stage,
+                ms: median(wall),
+                cpu_ms: median(cpu),
+            })
+            .collect()
+    }
+}
+
+/// Counts the iteration and samples the view.
+fn sample(world: &mut World) {
+    world
+        .run_system_cached(sample_view::advance_iteration)
+        .unwrap();
+    world.run_system_cached(sample_view::sample_view).unwrap();
+}
+
+/// The CPU stages of one iteration, each timed on its own, then the splatting stage's parts
+/// re-run on the buffers it just used.
+fn time_cpu_stages(world: &mut World, adam_only: &mut Schedule, samples: &mut Samples) {
+    samples.stage(world, "sample view", sample);
+    samples.stage(world, "time warp", |w| {
+        w.run_system_cached(time_warp::time_warp).unwrap()
+    });
+    samples.stage(world, "deform", |w| {
+        w.run_system_cached(deform::deform).unwrap()
+    });
+    samples.stage(world, "splat (project + bin + blend)", |w| {
+        w.run_system_cached(splat::splat).unwrap()
+    });
+    samples.stage(world, "loss (L1 + D-SSIM)", |w| {
+        w.run_system_cached(loss::loss).unwrap()
+    });
+    samples.stage(world, "backward (raster + projection)", |w| {
+        w.run_system_cached(backward::backward_splats).unwrap()
+    });
+    samples.stage(world, "backward (deformation)", |w| {
+        w.run_system_cached(backward::backward_parameters).unwrap()
+    });
+    samples.stage(world, "adam", |w| adam_only.run(w));
+    let camera = world.resource::<ViewSample>().camera;
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let mut buffers = world.resource_mut::<SplatBuffers>();
+    let b = &mut *buffers;
+    samples.record(
+        "  project",
+        time_ms(|| splat::project_all(&b.deformed, &camera, 0.01, &mut b.splats)),
+    );
+    samples.record(
+        "  bin + depth sort",
+        time_ms(|| b.rasterizer.bin(&b.splats, w, h)),
+    );
+    samples.record(
+        "  blend",
+        time_ms(|| b.rasterizer.blend(w, h, [0.0; 3], &mut b.render)),
+    );
+    let d_color = std::mem::take(&mut world.resource_mut::<LossImage>().d_color);
+    let mut buffers = world.resource_mut::<SplatBuffers>();
+    let b = &mut *buffers;
+    samples.record(
+        "  raster backward",
+        time_ms(|| {
+            b.rasterizer
+                .backward(&b.splats, &d_color, w, &mut b.splat_grads)
+        }),
+    );
+    world.resource_mut::<LossImage>().d_color = d_color;
+}
+
+/// The stages of one iteration on the GPU-resident pipeline, each timed until the device has
+/// finished it.
+fn time_gpu_stages(world: &mut World, samples: &mut Samples) -> Result<(), GpuError> {
+    samples.stage(world, "sample view", sample);
+    samples.stage(world, "time warp", |w| {
+        w.run_system_cached(time_warp::time_warp).unwrap()
+    });
+    samples.gpu_stage(world, "GPU deform … blend, image back", |w| {
+        w.run_system_cached(resident::resident_forward).unwrap()
+    })?;
+    samples.stage(world, "loss (L1 + D-SSIM)", |w| {
+        w.run_system_cached(loss::loss).unwrap()
+    });
+    samples.gpu_stage(world, "GPU backward + gradient check", |w| {
+        w.run_system_cached(resident::resident_backward).unwrap()
+    })?;
+    samples.gpu_stage(world, "GPU adam", |w| {
+        w.run_system_cached(resident::resident_adam).unwrap();
+        Ok(())
+    })?;
+    samples.gpu_stage(world, "GPU densification statistics", |w| {
+        w.run_system_cached(resident::resident_stats).unwrap();
+        Ok(())
+    })
+}
+
 /// Times every stage of a training iteration on the benchmark scene (`repeats` runs each, the
-/// median reported), then a whole iteration and a render at a new time.
-pub fn run(n: usize, width: u32, height: u32, repeats: usize) -> BenchReport {
+/// median reported), then a whole iteration and a render at a new time, on `backend`.
+pub fn run(
+    n: usize,
+    width: u32,
+    height: u32,
+    repeats: usize,
+    backend: BackendKind,
+) -> Result<BenchReport, GpuError> {
     let repeats = repeats.max(1);
-    let mut world = benchmark_world(n, width, height, false);
+    let mut world = benchmark_world_on(n, width, height, false, backend)?;
     let mut train = training_schedule();
     let mut adam_only = Schedule::default();
     adam_only.add_systems(adam::adam_systems());
@@ -217,103 +377,47 @@ pub fn run(n: usize, width: u32, height: u32, repeats: usize) -> BenchReport {
     train.run(&mut world);
     train.run(&mut world);
 
-    let mut samples: Vec<(&'static str, Vec<f64>, Vec<f64>)> = Vec::new();
-    let mut record = |stage: &'static str, (ms, cpu): (f64, f64)| match samples
-        .iter_mut()
-        .find(|s| s.0 == stage)
-    {
-        Some(s) => {
-            s.1.push(ms);
-            s.2.push(cpu);
-        }
-        None => samples.push((stage, vec![ms], vec![cpu])),
-    };
+    let mut samples = Samples::default();
     for _ in 0..repeats {
-        let mut timed =
-            |world: &mut World, stage, f: fn(&mut World)| record(stage, time_ms(|| f(world)));
-        timed(&mut world, "sample view", |w| {
-            w.run_system_cached(sample_view::advance_iteration).unwrap();
-            w.run_system_cached(sample_view::sample_view).unwrap();
-        });
-        timed(&mut world, "time warp", |w| {
-            w.run_system_cached(time_warp::time_warp).unwrap()
-        });
-        timed(&mut world, "deform", |w| {
-            w.run_system_cached(deform::deform).unwrap()
-        });
-        timed(&mut world, "splat (project + bin + blend)", |w| {
-            w.run_system_cached(splat::splat).unwrap()
-        });
-        timed(&mut world, "loss (L1 + D-SSIM)", |w| {
-            w.run_system_cached(loss::loss).unwrap()
-        });
-        timed(&mut world, "backward (raster + projection)", |w| {
-            w.run_system_cached(backward::backward_splats).unwrap()
-        });
-        timed(&mut world, "backward (deformation)", |w| {
-            w.run_system_cached(backward::backward_parameters).unwrap()
-        });
-        record("adam", time_ms(|| adam_only.run(&mut world)));
-        // The splatting stage split into its parts, re-run on the buffers it just used.
-        let camera = world.resource::<ViewSample>().camera;
-        let (w, h) = (width as usize, height as usize);
-        let mut buffers = world.resource_mut::<SplatBuffers>();
-        let b = &mut *buffers;
-        record(
-            "  project",
-            time_ms(|| splat::project_all(&b.deformed, &camera, 0.01, &mut b.splats)),
-        );
-        record(
-            "  bin + depth sort",
-            time_ms(|| b.rasterizer.bin(&b.splats, w, h)),
-        );
-        record(
-            "  blend",
-            time_ms(|| b.rasterizer.blend(w, h, [0.0; 3], &mut b.render)),
-        );
-        let d_color =
-            std::mem::take(&mut world.resource_mut::<crate::resources::LossImage>().d_color);
-        let mut buffers = world.resource_mut::<SplatBuffers>();
-        let b = &mut *buffers;
-        record(
-            "  raster backward",
-            time_ms(|| {
-                b.rasterizer
-                    .backward(&b.splats, &d_color, w, &mut b.splat_grads)
-            }),
-        );
-        world.resource_mut::<crate::resources::LossImage>().d_color = d_color;
+        match backend {
+            BackendKind::Cpu => time_cpu_stages(&mut world, &mut adam_only, &mut samples),
+            BackendKind::Gpu => time_gpu_stages(&mut world, &mut samples)?,
+        }
     }
     for _ in 0..repeats {
-        record("training iteration", time_ms(|| train.run(&mut world)));
+        samples.record("training iteration", time_ms(|| train.run(&mut world)));
     }
     let mut render = render_schedule();
     render.run(&mut world);
     for r in 0..repeats {
         world.resource_mut::<ViewSample>().time = 0.1 + 0.8 * r as f32 / repeats as f32;
-        record("render at a new time", time_ms(|| render.run(&mut world)));
+        samples.record("render at a new time", time_ms(|| render.run(&mut world)));
     }
 
-    let buffers = world.resource::<SplatBuffers>();
-    let visible = buffers.splats.iter().filter(|s| s.visible).count();
-    let scratch = scratch_bytes(buffers);
-    BenchReport {
+    let device = world
+        .get_resource::<GpuTraining>()
+        .map(GpuTraining::describe);
+    let (visible, intersections) = match world.get_resource::<GpuTraining>() {
+        Some(gpu) => (None, gpu.intersections()),
+        None => {
+            let buffers = world.resource::<SplatBuffers>();
+            let visible = buffers.splats.iter().filter(|s| s.visible).count();
+            (Some(visible), buffers.rasterizer.intersections())
+        }
+    };
+    let scratch = scratch_bytes(world.resource::<SplatBuffers>());
+    Ok(BenchReport {
         gaussians: n,
         width,
         height,
+        backend,
+        device,
         visible,
-        intersections: buffers.rasterizer.intersections(),
-        stages: samples
-            .into_iter()
-            .map(|(stage, wall, cpu)| StageTime {
-                stage,
-                ms: median(wall),
-                cpu_ms: median(cpu),
-            })
-            .collect(),
+        intersections,
+        stages: samples.medians(),
         component_bytes: std::mem::size_of::<GaussianBundle>(),
         scratch_bytes: scratch as f64 / n as f64,
-    }
+    })
 }
 
 impl BenchReport {
@@ -330,10 +434,17 @@ impl BenchReport {
                 s.stage, s.ms, s.cpu_ms, self.gaussians, pixels
             );
         }
+        let visible = match self.visible {
+            Some(v) => format!(" ({v} visible)"),
+            None => String::new(),
+        };
         out += &format!(
-            "\n{} × {}, {} Gaussians ({} visible), {} tile-splat pairs\n",
-            self.width, self.height, self.gaussians, self.visible, self.intersections
+            "\n{} × {}, {} Gaussians{visible}, {} tile-splat pairs, {:?} backend\n",
+            self.width, self.height, self.gaussians, self.intersections, self.backend
         );
+        if let Some(device) = &self.device {
+            out += &format!("GPU: {device}\n");
+        }
         out += &format!(
             "memory per Gaussian: {} B of components (parameters, gradients, Adam moments), \
              {:.0} B of per-iteration buffers, {:.0} B in all\n",
@@ -357,6 +468,10 @@ pub struct BenchArgs {
     /// Runs per stage; the median is reported.
     #[arg(long, default_value_t = 5)]
     pub repeats: usize,
+    /// Backend: cpu, or gpu (the GPU-resident iteration of `backend: Gpu`, each stage timed
+    /// until the device has finished it).
+    #[arg(long, value_parser = ["cpu", "gpu"], default_value = "cpu")]
+    pub backend: String,
 }
 
 /// `tadgs bench`: prints one table per (Gaussians, size) pair.
@@ -377,6 +492,10 @@ pub fn cli(args: &BenchArgs) -> anyhow::Result<()> {
             Ok((parse(w)?, parse(h)?))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
+    let backend = match args.backend.as_str() {
+        "gpu" => BackendKind::Gpu,
+        _ => BackendKind::Cpu,
+    };
     println!(
         "CPU: {} threads, SIMD level: {}",
         rayon::current_num_threads(),
@@ -384,7 +503,7 @@ pub fn cli(args: &BenchArgs) -> anyhow::Result<()> {
     );
     for &n in &args.gaussians {
         for &(w, h) in &sizes {
-            println!("\n{}", run(n, w, h, args.repeats).table());
+            println!("\n{}", run(n, w, h, args.repeats, backend)?.table());
         }
     }
     Ok(())

@@ -10,14 +10,15 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
 
 use crate::components::{
-    Adam, Color, Fourier, GradAccum, Opacity, Param, ParamRefs, Position, Rotation, Scale,
-    SplatSlot, Temporal, WarpedTime,
+    Adam, Color, Deformed, Fourier, GradAccum, Opacity, Param, ParamRefs, Position, Rotation,
+    Scale, SplatSlot, Temporal, WarpedTime,
 };
-use crate::gpu::{DeformSettings, GpuTraining, ResidentState, StatsConfig};
+use crate::gpu::{DeformSettings, GpuTraining, ParamGradients, ResidentState, StatsConfig};
 use crate::resources::{
     Fault, LossImage, NumericFault, Settings, SplatBuffers, TrainState, ViewSample,
 };
 use crate::systems::adam::{ParamGroup, position_lr};
+use crate::systems::backward::ParamGrads;
 
 /// The Adam moments of one Gaussian, as a read-only query.
 pub type AdamRefs<'a> = (
@@ -203,19 +204,42 @@ pub fn resident_stats(settings: Res<Settings>, mut gpu: ResMut<GpuTraining>) {
     gpu.accumulate_stats(&StatsConfig::from_settings(&settings));
 }
 
+/// Host scratch of [`resident_sync`].
+#[derive(Default)]
+pub struct SyncScratch {
+    state: ResidentState,
+    grads: ParamGradients,
+    deformed: Vec<Deformed>,
+}
+
 /// Reads the parameters, Adam moments and statistics back into the components (by
-/// [`SplatSlot`]) and marks the GPU copy stale.
+/// [`SplatSlot`]), and the last iteration's gradients and deformed Gaussians into
+/// [`Grad`](crate::components::Grad) and [`Deformed`], which the resident iteration itself
+/// never writes: after a sync, systems and tools that read them see what the CPU schedule
+/// would have left there. Then marks the GPU copy stale.
 pub fn resident_sync(
     mut gpu: ResMut<GpuTraining>,
-    mut gaussians: Query<(ResidentMuts, &mut GradAccum, &SplatSlot)>,
-    mut state: Local<ResidentState>,
+    mut gaussians: Query<(
+        ResidentMuts,
+        ParamGrads,
+        &mut Deformed,
+        &mut GradAccum,
+        &SplatSlot,
+    )>,
+    mut scratch: Local<SyncScratch>,
 ) -> Result {
     if gpu.is_dirty() {
         // Nothing ran on the GPU since the components were last written.
         return Ok(());
     }
-    let state = &mut *state;
+    let SyncScratch {
+        state,
+        grads,
+        deformed,
+    } = &mut *scratch;
     gpu.read(state)?;
+    gpu.read_gradients(grads)?;
+    gpu.read_deformed(deformed)?;
     let n = state.len();
     fn put<P: Param>(
         state: &ResidentState,
@@ -229,10 +253,23 @@ pub fn resident_sync(
         adam.m = ResidentState::get(&state.m, n, k, slot);
         adam.v = ResidentState::get(&state.v, n, k, slot);
     }
-    for (((p0, p1, p2, p3, p4, p5, p6), (a0, a1, a2, a3, a4, a5, a6)), mut accum, slot) in
-        gaussians.iter_mut()
+    for (
+        ((p0, p1, p2, p3, p4, p5, p6), (a0, a1, a2, a3, a4, a5, a6)),
+        (g0, g1, g2, g3, g4, g5, g6),
+        mut deformed_out,
+        mut accum,
+        slot,
+    ) in gaussians.iter_mut()
     {
         let s = slot.0 as usize;
+        *g0.into_inner() = grads.position[s];
+        *g1.into_inner() = grads.fourier[s];
+        *g2.into_inner() = grads.temporal[s];
+        *g3.into_inner() = grads.opacity[s];
+        *g4.into_inner() = grads.rotation[s];
+        *g5.into_inner() = grads.scale[s];
+        *g6.into_inner() = grads.color[s];
+        *deformed_out = deformed[s];
         put(state, n, 0, s, p0.into_inner(), a0.into_inner());
         put(state, n, 1, s, p1.into_inner(), a1.into_inner());
         put(state, n, 2, s, p2.into_inner(), a2.into_inner());

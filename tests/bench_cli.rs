@@ -1,7 +1,10 @@
-//! `tadgs bench` prints one stage table per requested (Gaussians, size) pair, and rejects a
-//! malformed size with one clear line.
+//! `tadgs bench` prints one stage table per requested (Gaussians, size) pair, on the CPU or the
+//! GPU backend, and rejects a malformed size with one clear line.
 
 use std::process::Command;
+
+#[path = "common/gpu.rs"]
+mod gpu;
 
 #[test]
 fn bench_prints_a_table_per_configuration() {
@@ -49,4 +52,47 @@ fn bench_rejects_a_bad_size() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--size 640by360: expected WxH"), "{err}");
+}
+
+/// `tadgs bench --backend gpu` times the GPU-resident stages and names the adapter.
+#[test]
+fn bench_times_the_gpu_resident_stages() {
+    if gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(true)).is_none() {
+        return;
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args([
+            "bench",
+            "--backend",
+            "gpu",
+            "--gaussians",
+            "500",
+            "--size",
+            "64x36",
+        ])
+        .args(["--repeats", "1"])
+        .output()
+        .expect("the tadgs binary runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    for stage in [
+        "GPU deform … blend, image back",
+        "GPU backward + gradient check",
+        "GPU adam",
+        "training iteration",
+        "render at a new time",
+    ] {
+        assert!(
+            text.lines().any(|l| l.starts_with(&format!("{stage} "))),
+            "stage {stage:?} in:\n{text}"
+        );
+    }
+    assert!(
+        text.contains("Gpu backend") && text.contains("GPU: "),
+        "{text}"
+    );
 }

@@ -17,6 +17,9 @@
 //! bound and the largest screen radius to 1e-3 relative (it comes from ln and sqrt of the
 //! opacity and covariance).
 //!
+//! After a sync the `Grad<P>` components equal the CPU's to the gradient bound above and
+//! `Deformed` to 1e-5 relative (plus 1e-5 of the largest value).
+//!
 //! Checked by hand to fail: Adam's section offset ignored, the statistics reading the Opacity
 //! section instead of Temporal, the gradient check taking the maximum index (so never tripping).
 
@@ -27,6 +30,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use bevy_ecs::prelude::*;
+use bytemuck::Pod;
 use tadgs::components::*;
 use tadgs::data::Dataset;
 use tadgs::data::synthetic::demo_scene;
@@ -92,6 +96,72 @@ fn groups(world: &mut World) -> Vec<(&'static str, [Vec<f32>; 3])> {
         ("scale", group::<Scale>(world)),
         ("color", group::<Color>(world)),
     ]
+}
+
+/// Component `C` of every Gaussian, in entity order, as flat floats.
+fn flat<C: Component + Pod>(world: &mut World) -> Vec<f32> {
+    let mut rows: Vec<(Entity, C)> = world
+        .query::<(Entity, &C)>()
+        .iter(world)
+        .map(|(e, c)| (e, *c))
+        .collect();
+    rows.sort_by_key(|r| r.0);
+    rows.iter()
+        .flat_map(|(_, c)| bytemuck::cast_slice::<u8, f32>(bytemuck::bytes_of(c)).to_vec())
+        .collect()
+}
+
+/// Largest error of `gpu` against `cpu` as a fraction of `rel · |cpu| + rel · max |cpu|`.
+fn worst_ratio(name: &str, cpu: &[f32], gpu: &[f32], rel: f32) -> f32 {
+    assert_eq!(cpu.len(), gpu.len(), "{name}: lengths");
+    let largest = cpu.iter().fold(0f32, |m, v| m.max(v.abs()));
+    let mut worst = 0f32;
+    for (i, (c, g)) in cpu.iter().zip(gpu).enumerate() {
+        let tol = rel * c.abs() + rel * largest + 1e-30;
+        let err = (c - g).abs();
+        assert!(err <= tol, "{name}[{i}]: GPU {g} vs CPU {c}");
+        worst = worst.max(err / tol);
+    }
+    worst
+}
+
+/// After a sync, the `Grad<P>` and `Deformed` components (which the resident iteration does
+/// not write) hold the last iteration's values, as on the CPU.
+fn compare_synced_components(cpu: &mut World, gpu: &mut World) -> f32 {
+    fn pair<P: Param>(cpu: &mut World, gpu: &mut World) -> (String, Vec<f32>, Vec<f32>) {
+        let values = |world: &mut World| -> Vec<f32> {
+            let mut rows: Vec<(Entity, Grad<P>)> = world
+                .query::<(Entity, &Grad<P>)>()
+                .iter(world)
+                .map(|(e, g)| (e, *g))
+                .collect();
+            rows.sort_by_key(|r| r.0);
+            rows.iter()
+                .flat_map(|(_, g)| g.0.values().to_vec())
+                .collect()
+        };
+        (format!("Grad<{}>", P::NAME), values(cpu), values(gpu))
+    }
+    let grads = [
+        pair::<Position>(cpu, gpu),
+        pair::<Fourier>(cpu, gpu),
+        pair::<Temporal>(cpu, gpu),
+        pair::<Opacity>(cpu, gpu),
+        pair::<Rotation>(cpu, gpu),
+        pair::<Scale>(cpu, gpu),
+        pair::<Color>(cpu, gpu),
+    ];
+    let mut worst = 0f32;
+    for (name, c, g) in &grads {
+        assert!(
+            c.iter().any(|v| *v != 0.0) || name == &format!("Grad<{}>", Rotation::NAME),
+            "{name}: some gradient"
+        );
+        worst = worst.max(worst_ratio(name, c, g, 1e-4));
+    }
+    // Deformed values agree to f32 rounding of the same formulas (tests/gpu_deform.rs).
+    let (c, g) = (flat::<Deformed>(cpu), flat::<Deformed>(gpu));
+    worst.max(worst_ratio("Deformed", &c, &g, 1e-5))
 }
 
 fn stats(world: &mut World) -> Vec<GradAccum> {
@@ -208,6 +278,8 @@ fn one_resident_iteration_equals_the_cpu_schedule() {
     let loss = (cpu.state().loss.total - gpu.state().loss.total).abs();
     gpu.sync();
     let (grads, stats, flips) = compare_first_step(&mut cpu.world, &mut gpu.world);
+    let synced = compare_synced_components(&mut cpu.world, &mut gpu.world);
+    eprintln!("synced Grad<P> and Deformed components ≤ {synced:.3} of tolerance");
     eprintln!(
         "{count} Gaussians: render error {image:.2e}, loss error {loss:.2e}, gradient error \
          ≤ {grads:.3} of tolerance, statistics ≤ {stats:.3}, {flips} first-step sign flips; \
@@ -295,8 +367,7 @@ fn resident_training_with_densification_tracks_the_cpu() {
 /// The gradient check reports the first non-finite gradient: an infinite dL/dcolour under the
 /// splats reaches their parameter gradients, and the check names the first one
 /// (`systems::resident::resident_backward` turns the report into the schedule's
-/// `NumericFault`, which stops Adam). A NaN in dL/dcolour at covered pixels did not reach the
-/// parameter gradients on lavapipe (the blending backward lost it), hence the infinity.
+/// `NumericFault`, which stops Adam); so does a NaN.
 #[test]
 fn non_finite_gradients_are_caught() {
     let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
@@ -366,4 +437,28 @@ fn non_finite_gradients_are_caught() {
         );
     }
     assert!(fault.is_some(), "the check trips");
+
+    // A NaN at the same pixels reaches the gradients too (float comparisons in the kernels
+    // are ordered, so a NaN must not be tested with `!=`), and the check reports it.
+    for d in d_color.iter_mut() {
+        if d[1].is_infinite() {
+            d[1] = f32::NAN;
+        }
+    }
+    let fault = training.backward(&d_color).unwrap();
+    training.read_gradients(&mut grads).unwrap();
+    let first_nan = grads
+        .position
+        .iter()
+        .position(|g| g.0.values().iter().any(|v| !v.is_finite()));
+    eprintln!("NaN dL/dcolour: {fault:?}; first NaN position gradient {first_nan:?}");
+    let first_nan = first_nan.expect("a NaN dL/dcolour reaches the position gradients");
+    assert_eq!(
+        fault,
+        Some(tadgs::gpu::GradientFault {
+            group: Position::NAME,
+            gaussian: first_nan
+        }),
+        "the first NaN gradient is reported"
+    );
 }

@@ -209,6 +209,15 @@ impl GpuTraining {
         self.dirty = true;
     }
 
+    /// Blocks until the device has finished the work submitted so far (for timing stages).
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Readback(e.to_string()))
+    }
+
     /// Number of (tile, splat) pairs of the last forward pass.
     pub fn intersections(&self) -> usize {
         self.raster.intersections()
@@ -413,6 +422,14 @@ impl GpuTraining {
     /// diagnostics; training never needs them on the CPU).
     pub fn read_gradients(&mut self, out: &mut super::ParamGradients) -> Result<(), GpuError> {
         self.deformer.read_grads(out)
+    }
+
+    /// Copies the deformed Gaussians of the last forward pass into `out` (one per slot).
+    pub fn read_deformed(
+        &mut self,
+        out: &mut Vec<crate::components::Deformed>,
+    ) -> Result<(), GpuError> {
+        self.deformer.read_deformed(out)
     }
 
     /// Copies the parameters, moments and statistics back into `out`.
