@@ -284,25 +284,28 @@ fn sample(world: &mut World) {
 /// The CPU stages of one iteration, each timed on its own, then the splatting stage's parts
 /// re-run on the buffers it just used.
 fn time_cpu_stages(world: &mut World, adam_only: &mut Schedule, samples: &mut Samples) {
-    samples.stage(world, "sample view", sample);
-    samples.stage(world, "time warp", |w| {
-        w.run_system_cached(time_warp::time_warp).unwrap()
-    });
-    samples.stage(world, "deform", |w| {
-        w.run_system_cached(deform::deform).unwrap()
-    });
-    samples.stage(world, "splat (project + bin + blend)", |w| {
-        w.run_system_cached(splat::splat).unwrap()
-    });
-    samples.stage(world, "loss (L1 + D-SSIM)", |w| {
-        w.run_system_cached(loss::loss).unwrap()
-    });
-    samples.stage(world, "backward (raster + projection)", |w| {
-        w.run_system_cached(backward::backward_splats).unwrap()
-    });
-    samples.stage(world, "backward (deformation)", |w| {
-        w.run_system_cached(backward::backward_parameters).unwrap()
-    });
+    let stages: [(&'static str, fn(&mut World)); 7] = [
+        ("sample view", sample),
+        ("time warp", |w| {
+            w.run_system_cached(time_warp::time_warp).unwrap()
+        }),
+        ("deform", |w| w.run_system_cached(deform::deform).unwrap()),
+        ("splat (project + bin + blend)", |w| {
+            w.run_system_cached(splat::splat).unwrap()
+        }),
+        ("loss (L1 + D-SSIM)", |w| {
+            w.run_system_cached(loss::loss).unwrap()
+        }),
+        ("backward (raster + projection)", |w| {
+            w.run_system_cached(backward::backward_splats).unwrap()
+        }),
+        ("backward (deformation)", |w| {
+            w.run_system_cached(backward::backward_parameters).unwrap()
+        }),
+    ];
+    for (stage, f) in stages {
+        samples.stage(world, stage, f);
+    }
     samples.stage(world, "adam", |w| adam_only.run(w));
     let camera = world.resource::<ViewSample>().camera;
     let (w, h) = (camera.width as usize, camera.height as usize);

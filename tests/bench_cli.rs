@@ -6,18 +6,11 @@ use std::process::Command;
 #[path = "common/gpu.rs"]
 mod gpu;
 
-#[test]
-fn bench_prints_a_table_per_configuration() {
+/// The table `tadgs bench ARGS` prints, after checking that it succeeded.
+fn bench(args: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
-        .args([
-            "bench",
-            "--gaussians",
-            "500,1000",
-            "--size",
-            "64x36",
-            "--repeats",
-            "1",
-        ])
+        .arg("bench")
+        .args(args)
         .output()
         .expect("the tadgs binary runs");
     assert!(
@@ -25,7 +18,19 @@ fn bench_prints_a_table_per_configuration() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let text = String::from_utf8_lossy(&out.stdout);
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn bench_prints_a_table_per_configuration() {
+    let text = bench(&[
+        "--gaussians",
+        "500,1000",
+        "--size",
+        "64x36",
+        "--repeats",
+        "1",
+    ]);
     for stage in [
         "deform",
         "  blend",
@@ -60,25 +65,8 @@ fn bench_times_the_gpu_resident_stages() {
     if gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(true)).is_none() {
         return;
     }
-    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
-        .args([
-            "bench",
-            "--backend",
-            "gpu",
-            "--gaussians",
-            "500",
-            "--size",
-            "64x36",
-        ])
-        .args(["--repeats", "1"])
-        .output()
-        .expect("the tadgs binary runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = String::from_utf8_lossy(&out.stdout);
+    let gpu_args = ["--backend", "gpu", "--gaussians", "500", "--size", "64x36"];
+    let text = bench(&[&gpu_args[..], &["--repeats", "1"]].concat());
     for stage in [
         "GPU deform … blend, image back",
         "GPU backward + gradient check",

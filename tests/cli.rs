@@ -489,21 +489,11 @@ fn gpu_trained_run_saves_evaluates_resumes_and_exports() {
     // read-back would hide a missing one before saving.
     let quiet = ["--no-renders", "--no-report", "--iterations", "37"];
     run_ok(&[&["-q", "train", scene, "--output", &cpu][..], &quiet].concat());
-    run_ok(
-        &[
-            &[
-                "-q",
-                "train",
-                scene,
-                "--backend",
-                "gpu",
-                "--output",
-                &straight,
-            ][..],
-            &quiet,
-        ]
-        .concat(),
-    );
+    let train_on_gpu = |output: &str, options: &[&str]| {
+        let args = ["-q", "train", scene, "--backend", "gpu", "--output", output];
+        run_ok(&[&args[..], options].concat())
+    };
+    train_on_gpu(&straight, &quiet);
     let psnr = |run: &str| summary(Path::new(run))["psnr"].as_f64().expect("PSNR");
     let (on_cpu, on_gpu) = (psnr(&cpu), psnr(&straight));
     eprintln!("held-out PSNR: CPU {on_cpu:.3} dB, GPU {on_gpu:.3} dB");
@@ -521,27 +511,16 @@ fn gpu_trained_run_saves_evaluates_resumes_and_exports() {
         "eval {evaluated} vs train {on_gpu}"
     );
 
-    run_ok(
+    train_on_gpu(
+        &resumed,
         &[
-            &[
-                "-q",
-                "train",
-                scene,
-                "--backend",
-                "gpu",
-                "--output",
-                &resumed,
-            ][..],
-            &[
-                "--iterations",
-                "37",
-                "--until",
-                "15",
-                "--checkpoint-every",
-                "7",
-            ],
-        ]
-        .concat(),
+            "--iterations",
+            "37",
+            "--until",
+            "15",
+            "--checkpoint-every",
+            "7",
+        ],
     );
     let checkpoint =
         tadgs::io::checkpoint::Checkpoint::load(&Path::new(&resumed).join("checkpoint")).unwrap();
