@@ -99,5 +99,11 @@ fn bench_blending(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_iteration, bench_blending);
+// No plots: criterion's plotters text rendering panics when this crate's plotters (built
+// with ab_glyph for the run reports) has no font registered; the figures are printed anyway.
+criterion_group! {
+    name = benches;
+    config = Criterion::default().without_plots();
+    targets = bench_iteration, bench_blending
+}
 criterion_main!(benches);

@@ -125,5 +125,11 @@ fn sweep(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, stages, sweep);
+// No plots: criterion's plotters text rendering panics when this crate's plotters (built
+// with ab_glyph for the run reports) has no font registered; the figures are printed anyway.
+criterion_group! {
+    name = benches;
+    config = Criterion::default().without_plots();
+    targets = stages, sweep
+}
 criterion_main!(benches);
