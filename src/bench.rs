@@ -281,21 +281,27 @@ fn sample(world: &mut World) {
     world.run_system_cached(sample_view::sample_view).unwrap();
 }
 
+/// Runs the time-warp stage (on the CPU with either backend).
+fn time_warp_stage(world: &mut World) {
+    world.run_system_cached(time_warp::time_warp).unwrap();
+}
+
+/// Runs the loss stage (on the CPU with either backend).
+fn loss_stage(world: &mut World) {
+    world.run_system_cached(loss::loss).unwrap();
+}
+
 /// The CPU stages of one iteration, each timed on its own, then the splatting stage's parts
 /// re-run on the buffers it just used.
 fn time_cpu_stages(world: &mut World, adam_only: &mut Schedule, samples: &mut Samples) {
     let stages: [(&'static str, fn(&mut World)); 7] = [
         ("sample view", sample),
-        ("time warp", |w| {
-            w.run_system_cached(time_warp::time_warp).unwrap()
-        }),
+        ("time warp", time_warp_stage),
         ("deform", |w| w.run_system_cached(deform::deform).unwrap()),
         ("splat (project + bin + blend)", |w| {
             w.run_system_cached(splat::splat).unwrap()
         }),
-        ("loss (L1 + D-SSIM)", |w| {
-            w.run_system_cached(loss::loss).unwrap()
-        }),
+        ("loss (L1 + D-SSIM)", loss_stage),
         ("backward (raster + projection)", |w| {
             w.run_system_cached(backward::backward_splats).unwrap()
         }),
@@ -340,15 +346,11 @@ fn time_cpu_stages(world: &mut World, adam_only: &mut Schedule, samples: &mut Sa
 /// finished it.
 fn time_gpu_stages(world: &mut World, samples: &mut Samples) -> Result<(), GpuError> {
     samples.stage(world, "sample view", sample);
-    samples.stage(world, "time warp", |w| {
-        w.run_system_cached(time_warp::time_warp).unwrap()
-    });
+    samples.stage(world, "time warp", time_warp_stage);
     samples.gpu_stage(world, "GPU deform … blend, image back", |w| {
         w.run_system_cached(resident::resident_forward).unwrap()
     })?;
-    samples.stage(world, "loss (L1 + D-SSIM)", |w| {
-        w.run_system_cached(loss::loss).unwrap()
-    });
+    samples.stage(world, "loss (L1 + D-SSIM)", loss_stage);
     samples.gpu_stage(world, "GPU backward + gradient check", |w| {
         w.run_system_cached(resident::resident_backward).unwrap()
     })?;
@@ -397,15 +399,12 @@ pub fn run(
         samples.record("render at a new time", time_ms(|| render.run(&mut world)));
     }
 
-    let device = world
-        .get_resource::<GpuTraining>()
-        .map(GpuTraining::describe);
-    let (visible, intersections) = match world.get_resource::<GpuTraining>() {
-        Some(gpu) => (None, gpu.intersections()),
+    let (device, visible, intersections) = match world.get_resource::<GpuTraining>() {
+        Some(gpu) => (Some(gpu.describe()), None, gpu.intersections()),
         None => {
             let buffers = world.resource::<SplatBuffers>();
             let visible = buffers.splats.iter().filter(|s| s.visible).count();
-            (Some(visible), buffers.rasterizer.intersections())
+            (None, Some(visible), buffers.rasterizer.intersections())
         }
     };
     let scratch = scratch_bytes(world.resource::<SplatBuffers>());

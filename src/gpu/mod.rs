@@ -141,6 +141,14 @@ impl GpuContext {
         )
     }
 
+    /// Blocks until the device has finished the work submitted so far.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Readback(e.to_string()))
+    }
+
     /// Waits for the submitted work and copies the first `bytes` of the mapped `staging`
     /// buffer into `out`.
     fn read_back<T: bytemuck::Pod>(
@@ -158,9 +166,7 @@ impl GpuContext {
         slice.map_async(wgpu::MapMode::Read, move |result| {
             let _ = sender.send(result);
         });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.wait()?;
         receiver
             .recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?

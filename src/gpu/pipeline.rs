@@ -211,11 +211,7 @@ impl GpuTraining {
 
     /// Blocks until the device has finished the work submitted so far (for timing stages).
     pub fn wait(&self) -> Result<(), GpuError> {
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| GpuError::Readback(e.to_string()))
+        self.gpu.wait()
     }
 
     /// Number of (tile, splat) pairs of the last forward pass.
