@@ -281,6 +281,9 @@ fn sample(world: &mut World) {
     world.run_system_cached(sample_view::sample_view).unwrap();
 }
 
+/// A stage's name and what runs it.
+type Stage = (&'static str, fn(&mut World));
+
 /// Runs the time-warp stage (on the CPU with either backend).
 fn time_warp_stage(world: &mut World) {
     world.run_system_cached(time_warp::time_warp).unwrap();
@@ -294,7 +297,7 @@ fn loss_stage(world: &mut World) {
 /// The CPU stages of one iteration, each timed on its own, then the splatting stage's parts
 /// re-run on the buffers it just used.
 fn time_cpu_stages(world: &mut World, adam_only: &mut Schedule, samples: &mut Samples) {
-    let stages: [(&'static str, fn(&mut World)); 7] = [
+    let stages: [Stage; 7] = [
         ("sample view", sample),
         ("time warp", time_warp_stage),
         ("deform", |w| w.run_system_cached(deform::deform).unwrap()),
