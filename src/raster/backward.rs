@@ -4,8 +4,9 @@ use rayon::prelude::*;
 
 use super::binning::for_each_tile_mut;
 use super::{
-    ALPHA_MAX, F8, GROUPS, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer, Splat, SplatGrad, TILE,
-    TILE_PIXELS, box_in_tile, falloff_lanes, group_lanes, prefetch_entry, row_spans, simd_kernel,
+    ALPHA_MAX, F8, GROUPS, GroupBits, Groups, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer, Splat,
+    SplatGrad, TILE, TILE_PIXELS, box_in_tile, falloff_lanes, prefetch_entry, row_spans,
+    simd_kernel,
 };
 
 impl Rasterizer {
@@ -156,18 +157,16 @@ simd_kernel! {
             let spans = row_spans(sp, origin, (x0, x1));
             // Lane-wise partial sums of the nine gradient entries, reduced once per (tile, splat).
             let mut acc = [F8::default(); 9];
-            for y in y0..y1 {
+            let mut walking: GroupBits = 0;
+            for (r, &count) in group_contributors.iter().enumerate() {
+                walking |= (((k as u32) < count) as GroupBits) << r;
+            }
+            for r in Groups(spans.groups(y0, y1) & walking) {
+                let (y, h) = (r / 2, r % 2);
                 let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-                let (cx0, cx1) = spans.row(y);
-                for h in cx0 / LANES..cx1.div_ceil(LANES) {
-                    let r = y * (TILE / LANES) + h;
-                    if k as u32 >= group_contributors[r] {
-                        continue;
-                    }
-                    let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
-                    let lanes = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
-                    backward_lanes(sp, &mut st, r, k as u32, dy, lanes, &mut acc);
-                }
+                let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
+                let lanes = falloff_lanes(sp, x_start, dy, spans.lanes(r));
+                backward_lanes(sp, &mut st, r, k as u32, dy, lanes, &mut acc);
             }
             let sum = acc.map(F8::sum);
             entry_grads[k] = SplatGrad {

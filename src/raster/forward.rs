@@ -3,9 +3,9 @@
 use rayon::prelude::*;
 
 use super::{
-    ALPHA_MAX, F8, GROUPS, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer, RenderOutput, Splat,
-    TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile, falloff_lanes, group_lanes, prefetch_entry,
-    row_spans, simd_kernel,
+    ALPHA_MAX, F8, GROUPS, GroupBits, Groups, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer,
+    RenderOutput, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile, falloff_lanes,
+    prefetch_entry, row_spans, simd_kernel,
 };
 
 /// Gaussian falloff exponent at offset (dx, dy) from the centre.
@@ -133,12 +133,16 @@ simd_kernel! {
                 live_count[r] += inside as u32;
             }
         }
-        let mut remaining: u32 = live_count.iter().sum();
+        // Groups with a pixel still blending.
+        let mut live_groups: GroupBits = 0;
+        for (r, &count) in live_count.iter().enumerate() {
+            live_groups |= ((count > 0) as GroupBits) << r;
+        }
         let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
         let (alpha_max, t_min) = (F8::splat(ALPHA_MAX), F8::splat(TRANSMITTANCE_MIN));
 
         for (k, &s) in entries.iter().enumerate() {
-            if remaining == 0 {
+            if live_groups == 0 {
                 break;
             }
             prefetch_entry(splats, entries, k + PREFETCH_AHEAD);
@@ -148,37 +152,30 @@ simd_kernel! {
             let contributor = k as u32 + 1;
             let opacity = F8::splat(sp.opacity);
             let splat_color = sp.color.map(F8::splat);
-            for y in y0..y1 {
+            for r in Groups(spans.groups(y0, y1) & live_groups) {
+                let (y, h) = (r / 2, r % 2);
                 let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-                let (cx0, cx1) = spans.row(y);
-                for h in cx0 / LANES..cx1.div_ceil(LANES) {
-                    let r = y * (TILE / LANES) + h;
-                    if live_count[r] == 0 {
-                        continue;
-                    }
-                    let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
-                    let (_, gauss) = falloff_lanes(sp, x_start, dy, group_lanes(h, cx0, cx1));
-                    // Whole-register selects, never per-lane conditional stores (masked
-                    // stores are slow on some CPUs).
-                    let g = F8(gauss);
-                    let raw = opacity * g;
-                    let alpha = raw.select(raw.lt(alpha_max), alpha_max);
-                    let drawn = zero.lt(g) & M8(live[r]);
-                    let t_front = F8(t[r]);
-                    let next = t_front * (one - alpha);
-                    let stop = drawn & next.lt(t_min);
-                    let blend = drawn.and_not(stop);
-                    let w = (alpha * t_front).select(blend, zero);
-                    for c in 0..3 {
-                        rgb[c][r] = (F8(rgb[c][r]) + splat_color[c] * w).0;
-                    }
-                    t[r] = next.select(blend, t_front).0;
-                    last[r] = blend.select_u32(contributor, last[r]);
-                    live[r] = M8(live[r]).and_not(stop).0;
-                    let stopped = stop.count();
-                    live_count[r] -= stopped;
-                    remaining -= stopped;
+                let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
+                let (_, gauss) = falloff_lanes(sp, x_start, dy, spans.lanes(r));
+                // Whole-register selects, never per-lane conditional stores (masked
+                // stores are slow on some CPUs).
+                let g = F8(gauss);
+                let raw = opacity * g;
+                let alpha = raw.select(raw.lt(alpha_max), alpha_max);
+                let drawn = zero.lt(g) & M8(live[r]);
+                let t_front = F8(t[r]);
+                let next = t_front * (one - alpha);
+                let stop = drawn & next.lt(t_min);
+                let blend = drawn.and_not(stop);
+                let w = (alpha * t_front).select(blend, zero);
+                for c in 0..3 {
+                    rgb[c][r] = (F8(rgb[c][r]) + splat_color[c] * w).0;
                 }
+                t[r] = next.select(blend, t_front).0;
+                last[r] = blend.select_u32(contributor, last[r]);
+                live[r] = M8(live[r]).and_not(stop).0;
+                live_count[r] -= stop.count();
+                live_groups &= !(((live_count[r] == 0) as GroupBits) << r);
             }
         }
         for r in 0..GROUPS {

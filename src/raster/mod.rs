@@ -312,10 +312,52 @@ struct RowSpans {
     hi: [u32; TILE],
 }
 
+/// A set of a tile's lane groups, bit r for group r (tile rows are two groups each).
+type GroupBits = u32;
+const _: () = assert!(GROUPS == GroupBits::BITS as usize);
+
 impl RowSpans {
+    /// The lane groups of rows [y0, y1) that the spans reach. The pixel loops walk these bits
+    /// instead of looping over rows and their groups: one loop with one exit per splat keeps
+    /// the branch predictor right, and a mispredicted branch would throw away the overlapping
+    /// work of the next groups.
     #[inline(always)]
-    fn row(&self, y: usize) -> (usize, usize) {
-        (self.lo[y] as usize, self.hi[y] as usize)
+    fn groups(&self, y0: usize, y1: usize) -> GroupBits {
+        let mut bits = 0;
+        for y in 0..TILE {
+            let (lo, hi) = (self.lo[y], self.hi[y]);
+            let row = (y >= y0) & (y < y1) & (lo < hi);
+            let first = row & (lo < LANES as u32);
+            let second = row & (hi > LANES as u32);
+            bits |= ((first as GroupBits) | (second as GroupBits) << 1) << (2 * y);
+        }
+        bits
+    }
+
+    /// Lanes [lo, hi) of group `r` inside its row's span.
+    #[inline(always)]
+    fn lanes(&self, r: usize) -> (usize, usize) {
+        let y = r / 2;
+        group_lanes(r % 2, self.lo[y] as usize, self.hi[y] as usize)
+    }
+}
+
+/// The groups in a [`GroupBits`] set, lowest first. An iterator rather than a closure: a
+/// closure is a function of its own that may stay out of line, and then it would not get the
+/// AVX2 code of the kernel that calls it.
+struct Groups(GroupBits);
+
+impl Iterator for Groups {
+    type Item = usize;
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<usize> {
+        let bits = self.0;
+        if bits == 0 {
+            return None;
+        }
+        self.0 = bits & (bits - 1);
+        Some(bits.trailing_zeros() as usize)
     }
 }
 
