@@ -104,6 +104,20 @@ impl Rasterizer {
     }
 }
 
+/// How many entries the forward blend goes between refreshes of its live groups.
+const LIVE_REFRESH: usize = 8;
+
+/// The groups with at least one lane set.
+#[inline(always)]
+fn live_bits(live: &[[u32; LANES]; GROUPS]) -> GroupBits {
+    let mut bits = 0;
+    for (r, lanes) in live.iter().enumerate() {
+        let any = lanes.iter().fold(0, |acc, &l| acc | l) != 0;
+        bits |= (any as GroupBits) << r;
+    }
+    bits
+}
+
 simd_kernel! {
     /// Blends one tile. Pixels outside the image keep transmittance 1 and no contributors.
     /// `color` holds the tile's 256 red, then green, then blue values.
@@ -121,29 +135,29 @@ simd_kernel! {
         let mut t = [[1f32; LANES]; GROUPS];
         let mut rgb = [[[0f32; LANES]; GROUPS]; 3];
         let mut last = [[0u32; LANES]; GROUPS];
-        // All bits set until the pixel stops; `live_count` per group lets finished groups be
-        // skipped.
+        // All bits set until the pixel stops.
         let mut live = [[0u32; LANES]; GROUPS];
-        let mut live_count = [0u32; GROUPS];
         for (r, group) in live.iter_mut().enumerate() {
             for (x, l) in group.iter_mut().enumerate() {
                 let p = r * LANES + x;
                 let inside = origin.0 + p % TILE < size.0 && origin.1 + p / TILE < size.1;
                 *l = if inside { !0 } else { 0 };
-                live_count[r] += inside as u32;
             }
         }
-        // Groups with a pixel still blending.
+        // Groups with a pixel still blending, refreshed every few entries only: the groups a
+        // splat visits then do not wait on the blending of the splats just before it, so the
+        // loop over them is known early and successive splats overlap. A group that stopped
+        // since the refresh is visited to no effect (its lanes are masked off).
         let mut live_groups: GroupBits = 0;
-        for (r, &count) in live_count.iter().enumerate() {
-            live_groups |= ((count > 0) as GroupBits) << r;
-        }
         let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
         let (alpha_max, t_min) = (F8::splat(ALPHA_MAX), F8::splat(TRANSMITTANCE_MIN));
 
         for (k, &s) in entries.iter().enumerate() {
-            if live_groups == 0 {
-                break;
+            if k % LIVE_REFRESH == 0 {
+                live_groups = live_bits(&live);
+                if live_groups == 0 {
+                    break;
+                }
             }
             prefetch_entry(splats, entries, k + PREFETCH_AHEAD);
             let sp = &splats[s as usize];
@@ -174,8 +188,6 @@ simd_kernel! {
                 t[r] = next.select(blend, t_front).0;
                 last[r] = blend.select_u32(contributor, last[r]);
                 live[r] = M8(live[r]).and_not(stop).0;
-                live_count[r] -= stop.count();
-                live_groups &= !(((live_count[r] == 0) as GroupBits) << r);
             }
         }
         for r in 0..GROUPS {

@@ -496,12 +496,6 @@ impl M8 {
         lanewise!(self.0, other, |m, o| (value & m) | (o & !m))
     }
 
-    /// Number of lanes set.
-    #[inline(always)]
-    fn count(self) -> u32 {
-        self.0.iter().map(|&m| m & 1).sum()
-    }
-
     /// Lanes where `k < values[i]`.
     #[inline(always)]
     fn below(k: u32, values: [u32; LANES]) -> M8 {
