@@ -4,9 +4,9 @@ use rayon::prelude::*;
 
 use super::binning::for_each_tile_mut;
 use super::{
-    ALPHA_MAX, F8, GROUPS, GroupBits, Groups, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer, Splat,
-    SplatGrad, TILE, TILE_PIXELS, box_in_tile, falloff_lanes, prefetch_entry, row_spans,
-    simd_kernel,
+    ALPHA_MAX, F16, Falloff, GROUPS, GroupBits, LANES, M16, PREFETCH_AHEAD, Packed, Pair, Pairs,
+    Rasterizer, SLOTS, Splat, SplatGrad, TILE, TILE_PIXELS, box_in_tile, falloff_pair,
+    prefetch_entry, row_spans, simd_kernel,
 };
 
 impl Rasterizer {
@@ -91,16 +91,16 @@ impl Rasterizer {
 /// Per-pixel state of the backward walk, in lane groups (group r holds pixels r·8 .. r·8 + 8).
 struct PixelState {
     /// Transmittance in front of the splat being visited.
-    transmittance: [[f32; LANES]; GROUPS],
+    transmittance: [[f32; LANES]; SLOTS],
     /// Colour of everything behind the last visited splat (before blending it).
-    accum: [[[f32; LANES]; GROUPS]; 3],
-    last_alpha: [[f32; LANES]; GROUPS],
-    last_color: [[[f32; LANES]; GROUPS]; 3],
-    d_pixel: [[[f32; LANES]; GROUPS]; 3],
+    accum: [[[f32; LANES]; SLOTS]; 3],
+    last_alpha: [[f32; LANES]; SLOTS],
+    last_color: [[[f32; LANES]; SLOTS]; 3],
+    d_pixel: [[[f32; LANES]; SLOTS]; 3],
     /// background · dL/dpixel.
-    bg_dot: [[f32; LANES]; GROUPS],
-    final_t: [[f32; LANES]; GROUPS],
-    contributors: [[u32; LANES]; GROUPS],
+    bg_dot: [[f32; LANES]; SLOTS],
+    final_t: [[f32; LANES]; SLOTS],
+    contributors: [[u32; LANES]; SLOTS],
 }
 
 simd_kernel! {
@@ -116,7 +116,7 @@ simd_kernel! {
         contributors: &[u32],
         entry_grads: &mut [SplatGrad],
     ) {
-        let zero = [[0f32; LANES]; GROUPS];
+        let zero = [[0f32; LANES]; SLOTS];
         let mut st = PixelState {
             transmittance: zero,
             accum: [zero; 3],
@@ -125,7 +125,7 @@ simd_kernel! {
             d_pixel: [zero; 3],
             bg_dot: zero,
             final_t: zero,
-            contributors: [[0; LANES]; GROUPS],
+            contributors: [[0; LANES]; SLOTS],
         };
         // Groups whose pixels all stopped before entry k are skipped.
         let mut group_contributors = [0u32; GROUPS];
@@ -156,19 +156,16 @@ simd_kernel! {
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
             let spans = row_spans(sp, origin, (x0, x1));
             // Lane-wise partial sums of the nine gradient entries, reduced once per (tile, splat).
-            let mut acc = [F8::default(); 9];
+            let mut acc = [F16::default(); 9];
             let mut walking: GroupBits = 0;
             for (r, &count) in group_contributors.iter().enumerate() {
                 walking |= (((k as u32) < count) as GroupBits) << r;
             }
-            for r in Groups(spans.groups(y0, y1) & walking) {
-                let (y, h) = (r / 2, r % 2);
-                let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-                let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
-                let lanes = falloff_lanes(sp, x_start, dy, spans.lanes(r));
-                backward_lanes(sp, &mut st, r, k as u32, dy, lanes, &mut acc);
+            for pair in Pairs(spans.groups(y0, y1) & walking) {
+                let falloff = falloff_pair::<FUSED>(sp, origin, &spans, pair);
+                backward_lanes(sp, &mut st, pair, k as u32, falloff, &mut acc);
             }
-            let sum = acc.map(F8::sum);
+            let sum = acc.map(F16::sum);
             entry_grads[k] = SplatGrad {
                 mean2d: glam::Vec2::new(sum[0], sum[1]),
                 conic: [sum[2], sum[3], sum[4]],
@@ -179,56 +176,56 @@ simd_kernel! {
     }
 }
 
-/// One lane group of the backward walk for splat entry `k`: un-blends it from every pixel it
-/// was blended into and adds its gradient terms to `acc` (mean x, y; conic a, b, c; opacity;
-/// r, g, b).
+/// One pair of lane groups of the backward walk for splat entry `k`: un-blends it from every
+/// pixel it was blended into and adds its gradient terms to `acc` (mean x, y; conic a, b, c;
+/// opacity; r, g, b).
 #[inline(always)]
 fn backward_lanes(
     sp: &Packed,
     st: &mut PixelState,
-    r: usize,
+    pair: Pair,
     k: u32,
-    dy: f32,
-    (dxs, gauss): ([f32; LANES], [f32; LANES]),
-    acc: &mut [F8; 9],
+    Falloff { dx, dy, gauss: g }: Falloff,
+    acc: &mut [F16; 9],
 ) {
-    let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
-    let [a, b, c] = sp.conic.map(F8::splat);
-    let (dx, dy, g) = (F8(dxs), F8::splat(dy), F8(gauss));
-    let opacity = F8::splat(sp.opacity);
-    let blended = zero.lt(g) & M8::below(k, st.contributors[r]);
+    let (zero, one) = (F16::splat(0.0), F16::splat(1.0));
+    let [a, b, c] = sp.conic.map(F16::splat);
+    let opacity = F16::splat(sp.opacity);
+    let blended = zero.lt(g) & M16::below(k, pair.get(&st.contributors));
     let raw_alpha = opacity * g;
-    let unclamped = raw_alpha.lt(F8::splat(ALPHA_MAX));
-    let alpha = raw_alpha.select(unclamped, F8::splat(ALPHA_MAX));
+    let unclamped = raw_alpha.lt(F16::splat(ALPHA_MAX));
+    let alpha = raw_alpha.select(unclamped, F16::splat(ALPHA_MAX));
     let inv_one_minus = one / (one - alpha);
     // Transmittance in front of this splat.
-    let t_behind = F8(st.transmittance[r]);
+    let t_behind = F16(pair.get(&st.transmittance));
     // Updates of the per-pixel state are written as "value op (select)", not "select(new,
     // old)": LLVM turns a select stored back where it was loaded into a masked store, which
     // costs a dozen cycles on AMD CPUs.
     let t = t_behind * inv_one_minus.select(blended, one);
-    st.transmittance[r] = t.0;
-    let la = F8(st.last_alpha[r]);
+    pair.set(&mut st.transmittance, t.0);
+    let la = F16(pair.get(&st.last_alpha));
     let weight = (alpha * t).select(blended, zero);
     let mut d_alpha = zero;
     for ch in 0..3 {
         // Colour of everything behind this splat, as seen through it.
-        let accum = F8(st.accum[ch][r]);
-        let behind = accum + (la * (F8(st.last_color[ch][r]) - accum)).select(blended, zero);
-        st.accum[ch][r] = behind.0;
-        let color = F8::splat(sp.color[ch]);
-        st.last_color[ch][r] = color.select(blended, F8(st.last_color[ch][r])).0;
-        let d_pixel = F8(st.d_pixel[ch][r]);
+        let accum = F16(pair.get(&st.accum[ch]));
+        let last_color = F16(pair.get(&st.last_color[ch]));
+        let behind = accum + (la * (last_color - accum)).select(blended, zero);
+        pair.set(&mut st.accum[ch], behind.0);
+        let color = F16::splat(sp.color[ch]);
+        pair.set(&mut st.last_color[ch], color.select(blended, last_color).0);
+        let d_pixel = F16(pair.get(&st.d_pixel[ch]));
         d_alpha = d_alpha + (color - behind) * d_pixel;
         acc[6 + ch] = acc[6 + ch] + weight * d_pixel;
     }
-    st.last_alpha[r] = alpha.select(blended, la).0;
+    pair.set(&mut st.last_alpha, alpha.select(blended, la).0);
     // The background is seen through every splat: final_T = t·(1 − alpha)·(rest).
-    let d_alpha = d_alpha * t - F8(st.final_t[r]) * inv_one_minus * F8(st.bg_dot[r]);
+    let d_alpha =
+        d_alpha * t - F16(pair.get(&st.final_t)) * inv_one_minus * F16(pair.get(&st.bg_dot));
     // A clamped alpha passes no gradient to opacity or shape.
     let d_alpha = d_alpha.select(blended & unclamped, zero);
     let d_power = opacity * g * d_alpha;
-    let half = F8::splat(0.5);
+    let half = F16::splat(0.5);
     acc[0] = acc[0] + d_power * (a * dx + b * dy);
     acc[1] = acc[1] + d_power * (c * dy + b * dx);
     acc[2] = acc[2] - half * dx * dx * d_power;

@@ -3,16 +3,10 @@
 use rayon::prelude::*;
 
 use super::{
-    ALPHA_MAX, F8, GROUPS, GroupBits, Groups, LANES, M8, PREFETCH_AHEAD, Packed, Rasterizer,
-    RenderOutput, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile, falloff_lanes,
+    ALPHA_MAX, F16, GROUPS, GroupBits, LANES, M16, PREFETCH_AHEAD, Packed, Pairs, Rasterizer,
+    RenderOutput, SLOTS, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile, falloff_pair,
     prefetch_entry, row_spans, simd_kernel,
 };
-
-/// Gaussian falloff exponent at offset (dx, dy) from the centre.
-#[inline(always)]
-pub(super) fn power(conic: &[f32; 3], dx: f32, dy: f32) -> f32 {
-    -0.5 * (conic[0] * dx * dx + conic[2] * dy * dy) - conic[1] * dx * dy
-}
 
 impl Rasterizer {
     /// Renders `splats` into a `width × height` image over `background`.
@@ -109,9 +103,9 @@ const LIVE_REFRESH: usize = 8;
 
 /// The groups with at least one lane set.
 #[inline(always)]
-fn live_bits(live: &[[u32; LANES]; GROUPS]) -> GroupBits {
+fn live_bits(live: &[[u32; LANES]; SLOTS]) -> GroupBits {
     let mut bits = 0;
-    for (r, lanes) in live.iter().enumerate() {
+    for (r, lanes) in live[..GROUPS].iter().enumerate() {
         let any = lanes.iter().fold(0, |acc, &l| acc | l) != 0;
         bits |= (any as GroupBits) << r;
     }
@@ -132,12 +126,12 @@ simd_kernel! {
         contributors: &mut [u32],
     ) {
         // Per-pixel state in lane groups: group r holds pixels r·8 .. r·8 + 8 of the tile.
-        let mut t = [[1f32; LANES]; GROUPS];
-        let mut rgb = [[[0f32; LANES]; GROUPS]; 3];
-        let mut last = [[0u32; LANES]; GROUPS];
-        // All bits set until the pixel stops.
-        let mut live = [[0u32; LANES]; GROUPS];
-        for (r, group) in live.iter_mut().enumerate() {
+        let mut t = [[1f32; LANES]; SLOTS];
+        let mut rgb = [[[0f32; LANES]; SLOTS]; 3];
+        let mut last = [[0u32; LANES]; SLOTS];
+        // All bits set until the pixel stops (never set in the idle slot).
+        let mut live = [[0u32; LANES]; SLOTS];
+        for (r, group) in live[..GROUPS].iter_mut().enumerate() {
             for (x, l) in group.iter_mut().enumerate() {
                 let p = r * LANES + x;
                 let inside = origin.0 + p % TILE < size.0 && origin.1 + p / TILE < size.1;
@@ -149,8 +143,8 @@ simd_kernel! {
         // loop over them is known early and successive splats overlap. A group that stopped
         // since the refresh is visited to no effect (its lanes are masked off).
         let mut live_groups: GroupBits = 0;
-        let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
-        let (alpha_max, t_min) = (F8::splat(ALPHA_MAX), F8::splat(TRANSMITTANCE_MIN));
+        let (zero, one) = (F16::splat(0.0), F16::splat(1.0));
+        let (alpha_max, t_min) = (F16::splat(ALPHA_MAX), F16::splat(TRANSMITTANCE_MIN));
 
         for (k, &s) in entries.iter().enumerate() {
             if k % LIVE_REFRESH == 0 {
@@ -164,30 +158,29 @@ simd_kernel! {
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
             let spans = row_spans(sp, origin, (x0, x1));
             let contributor = k as u32 + 1;
-            let opacity = F8::splat(sp.opacity);
-            let splat_color = sp.color.map(F8::splat);
-            for r in Groups(spans.groups(y0, y1) & live_groups) {
-                let (y, h) = (r / 2, r % 2);
-                let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-                let x_start = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
-                let (_, gauss) = falloff_lanes(sp, x_start, dy, spans.lanes(r));
+            let opacity = F16::splat(sp.opacity);
+            let splat_color = sp.color.map(F16::splat);
+            for pair in Pairs(spans.groups(y0, y1) & live_groups) {
+                let g = falloff_pair::<FUSED>(sp, origin, &spans, pair).gauss;
                 // Whole-register selects, never per-lane conditional stores (masked
                 // stores are slow on some CPUs).
-                let g = F8(gauss);
                 let raw = opacity * g;
                 let alpha = raw.select(raw.lt(alpha_max), alpha_max);
-                let drawn = zero.lt(g) & M8(live[r]);
-                let t_front = F8(t[r]);
+                let live_lanes = M16(pair.get(&live));
+                let drawn = zero.lt(g) & live_lanes;
+                let t_front = F16(pair.get(&t));
                 let next = t_front * (one - alpha);
                 let stop = drawn & next.lt(t_min);
                 let blend = drawn.and_not(stop);
                 let w = (alpha * t_front).select(blend, zero);
                 for c in 0..3 {
-                    rgb[c][r] = (F8(rgb[c][r]) + splat_color[c] * w).0;
+                    let sum = F16(pair.get(&rgb[c])) + splat_color[c] * w;
+                    pair.set(&mut rgb[c], sum.0);
                 }
-                t[r] = next.select(blend, t_front).0;
-                last[r] = blend.select_u32(contributor, last[r]);
-                live[r] = M8(live[r]).and_not(stop).0;
+                pair.set(&mut t, next.select(blend, t_front).0);
+                let latest = blend.select_u32(contributor, pair.get(&last));
+                pair.set(&mut last, latest);
+                pair.set(&mut live, live_lanes.and_not(stop).0);
             }
         }
         for r in 0..GROUPS {

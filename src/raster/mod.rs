@@ -82,8 +82,8 @@ struct Packed {
     mean: [f32; 2],
     conic: [f32; 3],
     opacity: f32,
-    /// The exponent below which alpha < 1/255 (see [`min_power`]).
-    min_power: f32,
+    /// The exponent, in powers of two, below which alpha < 1/255 ([`min_power`] · log2 e).
+    min_exp2: f32,
     color: [f32; 3],
     extent: [f32; 2],
     /// Row spans of the ellipse where the exponent reaches `min_power` − 0.01: at vertical
@@ -107,7 +107,7 @@ impl Packed {
             mean: s.mean2d.to_array(),
             conic: s.conic,
             opacity: s.opacity,
-            min_power,
+            min_exp2: min_power * std::f32::consts::LOG2_E,
             color: s.color,
             extent: s.extent.to_array(),
             span,
@@ -183,24 +183,40 @@ impl Rasterizer {
     }
 }
 
-/// e^x for x ≤ 0 (the Gaussian falloff), relative error below 2e-6 (1e-7 from the polynomial, the rest
-/// from rounding x·log2 e in f32): a power-of-two split and
-/// a degree-6 polynomial, branch-free so the per-pixel loops vectorise (libm's `expf` is a call).
+/// e^x for x ≤ 0 (the Gaussian falloff), relative error below 2e-6 (1e-7 from the polynomial,
+/// the rest from rounding x·log2 e in f32); see [`exp2_falloff`].
 #[inline(always)]
 pub fn exp_falloff(x: f32) -> f32 {
-    let t = (x * std::f32::consts::LOG2_E).max(-126.0);
+    exp2_falloff::<false>(x * std::f32::consts::LOG2_E)
+}
+
+/// a·b + c: one fused instruction in the kernels compiled with FMA (`FUSED`), else a multiply
+/// and an add (`mul_add` without the instruction is a slow libm call).
+#[inline(always)]
+fn mul_add<const FUSED: bool>(a: f32, b: f32, c: f32) -> f32 {
+    if FUSED { a.mul_add(b, c) } else { a * b + c }
+}
+
+/// 2^t for t ≤ 0: a power-of-two split and a degree-5 polynomial (relative error 1e-7 on its
+/// interval), branch-free so the per-pixel loops vectorise (libm's `exp2f` is a call). It is
+/// the longest chain of dependent steps in the pixel loops, so it is kept short: Horner's rule
+/// with fused multiply-adds where the CPU has them.
+#[inline(always)]
+fn exp2_falloff<const FUSED: bool>(t: f32) -> f32 {
+    let t = t.max(-126.0);
     // Round to nearest by adding and removing 1.5·2^23: the sum holds n = round(t) in its low
     // mantissa bits (no libm call, no float-to-int conversion; vectorises).
     const ROUND: f32 = 12_582_912.0;
     let shifted = t + ROUND;
     let n = shifted - ROUND;
     let f = t - n; // in [−½, ½]
-    // 2^f = e^(f ln 2) by its Taylor series to degree 6 (truncation error < 1.2e-7 on [−½, ½]).
-    let p = 1.0
-        + f * (std::f32::consts::LN_2
-            + f * (0.240_226_5
-                + f * (0.055_504_11
-                    + f * (0.009_618_129 + f * (0.001_333_355_8 + f * 0.000_154_035_3)))));
+    // 2^f − 1 = f·q(f), q the degree-4 polynomial that minimises the relative error of 2^f on
+    // [−½, ½] (9.2e-8); the constant term stays exactly 1, so 2^0 = 1.
+    let q = mul_add::<FUSED>(0.001_326_472_5, f, 0.009_671_513);
+    let q = mul_add::<FUSED>(q, f, 0.055_507_337);
+    let q = mul_add::<FUSED>(q, f, 0.240_222_42);
+    let q = mul_add::<FUSED>(q, f, 0.693_146_98);
+    let p = mul_add::<FUSED>(q, f, 1.0);
     // 2^n from the exponent bits: n + 127 shifted into place (n ≥ −126 by the clamp above).
     let n_bits = shifted.to_bits().wrapping_sub(ROUND.to_bits());
     f32::from_bits(n_bits.wrapping_add(127) << 23) * p
@@ -305,16 +321,24 @@ fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> R
     spans
 }
 
-/// Column spans [lo, hi) per tile row (see [`row_spans`]).
+/// Column spans [lo, hi) per tile row (see [`row_spans`]); the extra row, always empty, is
+/// the one of the idle slot ([`IDLE`]).
 #[derive(Default)]
 struct RowSpans {
-    lo: [u32; TILE],
-    hi: [u32; TILE],
+    lo: [u32; TILE + 1],
+    hi: [u32; TILE + 1],
 }
 
 /// A set of a tile's lane groups, bit r for group r (tile rows are two groups each).
 type GroupBits = u32;
 const _: () = assert!(GROUPS == GroupBits::BITS as usize);
+
+/// Slot of the per-pixel state arrays that belongs to no pixel: the pixel loops take lane
+/// groups two at a time, and a splat that reaches an odd number of groups pairs its last one
+/// with this slot, which draws nothing (no lanes in its span, no live or walked pixels).
+const IDLE: usize = GROUPS;
+/// Slots of the per-pixel state arrays: one per lane group, plus [`IDLE`].
+const SLOTS: usize = GROUPS + 1;
 
 impl RowSpans {
     /// The lane groups of rows [y0, y1) that the spans reach. The pixel loops walk these bits
@@ -334,7 +358,7 @@ impl RowSpans {
         bits
     }
 
-    /// Lanes [lo, hi) of group `r` inside its row's span.
+    /// Lanes [lo, hi) of group `r` inside its row's span (none for [`IDLE`]).
     #[inline(always)]
     fn lanes(&self, r: usize) -> (usize, usize) {
         let y = r / 2;
@@ -342,72 +366,136 @@ impl RowSpans {
     }
 }
 
-/// The groups in a [`GroupBits`] set, lowest first. An iterator rather than a closure: a
-/// closure is a function of its own that may stay out of line, and then it would not get the
-/// AVX2 code of the kernel that calls it.
-struct Groups(GroupBits);
+/// Two lane groups worked on together, as one 16-lane vector: two independent chains of
+/// arithmetic keep the CPU busy while each waits on the latency of the other (the exponential
+/// alone is a chain of a dozen dependent steps).
+#[derive(Clone, Copy)]
+struct Pair([usize; 2]);
 
-impl Iterator for Groups {
-    type Item = usize;
+impl Pair {
+    /// The two groups' lanes of a per-group state array, side by side.
+    #[inline(always)]
+    fn get<T: Copy + Default>(self, state: &[[T; LANES]; SLOTS]) -> [T; PAIR] {
+        let mut out = [T::default(); PAIR];
+        out[..LANES].copy_from_slice(&state[self.0[0]]);
+        out[LANES..].copy_from_slice(&state[self.0[1]]);
+        out
+    }
+
+    /// Writes `value` back into the two groups' lanes of `state`.
+    #[inline(always)]
+    fn set<T: Copy>(self, state: &mut [[T; LANES]; SLOTS], value: [T; PAIR]) {
+        state[self.0[0]].copy_from_slice(&value[..LANES]);
+        state[self.0[1]].copy_from_slice(&value[LANES..]);
+    }
+}
+
+/// The groups in a [`GroupBits`] set, lowest first, two at a time; an odd one out is paired
+/// with [`IDLE`]. An iterator rather than a closure: a closure is a function of its own that
+/// may stay out of line, and then it would not get the AVX2 code of the kernel that calls it.
+struct Pairs(GroupBits);
+
+impl Iterator for Pairs {
+    type Item = Pair;
 
     #[inline(always)]
-    fn next(&mut self) -> Option<usize> {
+    fn next(&mut self) -> Option<Pair> {
         let bits = self.0;
         if bits == 0 {
             return None;
         }
-        self.0 = bits & (bits - 1);
-        Some(bits.trailing_zeros() as usize)
+        let first = bits.trailing_zeros() as usize;
+        let rest = bits & (bits - 1);
+        let second = if rest == 0 {
+            IDLE
+        } else {
+            rest.trailing_zeros() as usize
+        };
+        self.0 = rest & rest.wrapping_sub(1);
+        Some(Pair([first, second]))
     }
 }
 
-/// One lane group of a splat's falloff (pixels x_start + 0..8 of a row, offsets from the
-/// centre): for every lane the offset dx and the Gaussian G, with G = 0 where the splat is not
-/// drawn (outside the box's lanes [lo, hi), exponent outside [min_power, 0], or alpha < 1/255);
-/// a drawn pixel has alpha ≥ 1/255, so G > 0 is the drawn mask. Forward and backward share it
-/// so they agree on every pixel.
+/// A splat's falloff over a [`Pair`] of lane groups: per lane the offsets (dx, dy) of the
+/// pixel centre from the splat's centre and the Gaussian G, with G = 0 where the splat is not
+/// drawn (outside the lanes of its row span, exponent outside [min_power, 0], or alpha below
+/// 1/255); a drawn pixel has alpha ≥ 1/255, so G > 0 is the drawn mask. Forward and backward
+/// share it so they agree on every pixel.
+struct Falloff {
+    dx: F16,
+    dy: F16,
+    gauss: F16,
+}
+
 #[inline(always)]
-fn falloff_lanes(
+fn falloff_pair<const FUSED: bool>(
     sp: &Packed,
-    x_start: f32,
-    dy: f32,
-    (lo, hi): (usize, usize),
-) -> ([f32; LANES], [f32; LANES]) {
-    let (mut dxs, mut gs) = ([0f32; LANES], [0f32; LANES]);
-    // Lane bounds as floats: 32-bit compares (usize ones would split each register in four).
-    let (lo, hi) = (lo as f32, hi as f32);
-    for x in 0..LANES {
-        let lane = x as f32;
-        let dx = x_start + lane;
-        let power = forward::power(&sp.conic, dx, dy);
-        let gauss = exp_falloff(power);
-        let in_box = lane >= lo && lane < hi;
-        // Below `min_power` alpha < 1/255; a positive exponent is numerical noise.
-        let drawn =
-            in_box & !(power > 0.0) & !(power < sp.min_power) & (sp.opacity * gauss >= ALPHA_MIN);
-        dxs[x] = dx;
-        gs[x] = pick(drawn, gauss, 0.0);
+    origin: (usize, usize),
+    spans: &RowSpans,
+    pair: Pair,
+) -> Falloff {
+    let (mut dx, mut dy, mut gauss) = ([0f32; PAIR], [0f32; PAIR], [0f32; PAIR]);
+    // The exponent in powers of two, e2(dx) = (qa·dx + qb·dy)·dx + qc·dy², is two multiply-adds
+    // per pixel once the row's terms are known.
+    let [a, b, c] = sp.conic;
+    let log2e = std::f32::consts::LOG2_E;
+    let (qa, qb, qc) = (-0.5 * a * log2e, -b * log2e, -0.5 * c * log2e);
+    // Per half: where its lanes start, the row's offset and terms, and its lanes in the span,
+    // as floats for 32-bit compares (usize ones would split each register in four).
+    let mut x_start = [0f32; 2];
+    let mut row_dy = [0f32; 2];
+    let mut row_terms = [(0f32, 0f32); 2];
+    let mut bounds = [(0f32, 0f32); 2];
+    for (half, &r) in pair.0.iter().enumerate() {
+        let (y, h) = (r / 2, r % 2);
+        let d = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
+        row_dy[half] = d;
+        row_terms[half] = (qb * d, qc * d * d);
+        x_start[half] = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
+        let (lo, hi) = spans.lanes(r);
+        bounds[half] = (lo as f32, hi as f32);
     }
-    (dxs, gs)
+    for i in 0..PAIR {
+        let half = i / LANES;
+        let lane = (i % LANES) as f32;
+        let (lo, hi) = bounds[half];
+        let (linear, constant) = row_terms[half];
+        dx[i] = x_start[half] + lane;
+        dy[i] = row_dy[half];
+        let e2 = mul_add::<FUSED>(mul_add::<FUSED>(qa, dx[i], linear), dx[i], constant);
+        let g = exp2_falloff::<FUSED>(e2);
+        let in_box = lane >= lo && lane < hi;
+        // Below `min_exp2` alpha < 1/255; a positive exponent is numerical noise.
+        let drawn = in_box & !(e2 > 0.0) & !(e2 < sp.min_exp2) & (sp.opacity * g >= ALPHA_MIN);
+        gauss[i] = pick(drawn, g, 0.0);
+    }
+    Falloff {
+        dx: F16(dx),
+        dy: F16(dy),
+        gauss: F16(gauss),
+    }
 }
 
-/// Eight f32 lanes with element-wise arithmetic written as plain loops, which the compiler
-/// turns into one vector instruction each (one AVX2 register, or two SSE ones). Long chains of
-/// array code are not always vectorised; these small steps always are.
+/// Lanes of a [`Pair`]: two groups of eight pixels.
+const PAIR: usize = 2 * LANES;
+
+/// Sixteen f32 lanes with element-wise arithmetic written as plain loops, which the compiler
+/// turns into two vector instructions each (two AVX2 registers, or four SSE ones). Long chains
+/// of array code are not always vectorised; these small steps always are.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(transparent)]
-struct F8([f32; LANES]);
+struct F16([f32; PAIR]);
 
-/// Lane masks for [`F8`]: all bits set where true.
+/// Lane masks for [`F16`]: all bits set where true.
 #[derive(Clone, Copy, Debug)]
 #[repr(transparent)]
-struct M8([u32; LANES]);
+struct M16([u32; PAIR]);
 
 macro_rules! lanewise {
     ($a:expr, $b:expr, |$x:ident, $y:ident| $e:expr) => {{
         let (a, b) = ($a, $b);
-        let mut out = [Default::default(); LANES];
-        for i in 0..LANES {
+        let mut out = [Default::default(); PAIR];
+        for i in 0..PAIR {
             let ($x, $y) = (a[i], b[i]);
             out[i] = $e;
         }
@@ -415,66 +503,66 @@ macro_rules! lanewise {
     }};
 }
 
-impl std::ops::Add for F8 {
-    type Output = F8;
+impl std::ops::Add for F16 {
+    type Output = F16;
     #[inline(always)]
-    fn add(self, o: F8) -> F8 {
-        F8(lanewise!(self.0, o.0, |x, y| x + y))
+    fn add(self, o: F16) -> F16 {
+        F16(lanewise!(self.0, o.0, |x, y| x + y))
     }
 }
 
-impl std::ops::Sub for F8 {
-    type Output = F8;
+impl std::ops::Sub for F16 {
+    type Output = F16;
     #[inline(always)]
-    fn sub(self, o: F8) -> F8 {
-        F8(lanewise!(self.0, o.0, |x, y| x - y))
+    fn sub(self, o: F16) -> F16 {
+        F16(lanewise!(self.0, o.0, |x, y| x - y))
     }
 }
 
-impl std::ops::Mul for F8 {
-    type Output = F8;
+impl std::ops::Mul for F16 {
+    type Output = F16;
     #[inline(always)]
-    fn mul(self, o: F8) -> F8 {
-        F8(lanewise!(self.0, o.0, |x, y| x * y))
+    fn mul(self, o: F16) -> F16 {
+        F16(lanewise!(self.0, o.0, |x, y| x * y))
     }
 }
 
-impl std::ops::Div for F8 {
-    type Output = F8;
+impl std::ops::Div for F16 {
+    type Output = F16;
     #[inline(always)]
-    fn div(self, o: F8) -> F8 {
-        F8(lanewise!(self.0, o.0, |x, y| x / y))
+    fn div(self, o: F16) -> F16 {
+        F16(lanewise!(self.0, o.0, |x, y| x / y))
     }
 }
 
-impl std::ops::BitAnd for M8 {
-    type Output = M8;
+impl std::ops::BitAnd for M16 {
+    type Output = M16;
     #[inline(always)]
-    fn bitand(self, o: M8) -> M8 {
-        M8(lanewise!(self.0, o.0, |x, y| x & y))
+    fn bitand(self, o: M16) -> M16 {
+        M16(lanewise!(self.0, o.0, |x, y| x & y))
     }
 }
 
-impl F8 {
+impl F16 {
     #[inline(always)]
-    fn splat(v: f32) -> F8 {
-        F8([v; LANES])
+    fn splat(v: f32) -> F16 {
+        F16([v; PAIR])
     }
 
     #[inline(always)]
-    fn lt(self, o: F8) -> M8 {
-        M8(lanewise!(self.0, o.0, |x, y| if x < y { !0 } else { 0 }))
+    fn lt(self, o: F16) -> M16 {
+        M16(lanewise!(self.0, o.0, |x, y| if x < y { !0 } else { 0 }))
     }
 
     /// `self` where `m`, else `other`.
     #[inline(always)]
-    fn select(self, m: M8, other: F8) -> F8 {
-        let mut out = [0f32; LANES];
-        for i in 0..LANES {
+    fn select(self, m: M16, other: F16) -> F16 {
+        let mut out = [0f32; PAIR];
+        for i in 0..PAIR {
             let bits = (self.0[i].to_bits() & m.0[i]) | (other.0[i].to_bits() & !m.0[i]);
             out[i] = f32::from_bits(bits);
         }
-        F8(out)
+        F16(out)
     }
 
     #[inline(always)]
@@ -483,27 +571,27 @@ impl F8 {
     }
 }
 
-impl M8 {
+impl M16 {
     /// Lanes set in `self` but not in `other`.
     #[inline(always)]
-    fn and_not(self, other: M8) -> M8 {
-        M8(lanewise!(self.0, other.0, |x, y| x & !y))
+    fn and_not(self, other: M16) -> M16 {
+        M16(lanewise!(self.0, other.0, |x, y| x & !y))
     }
 
     /// `value` where set, else `other`, for integer lanes.
     #[inline(always)]
-    fn select_u32(self, value: u32, other: [u32; LANES]) -> [u32; LANES] {
+    fn select_u32(self, value: u32, other: [u32; PAIR]) -> [u32; PAIR] {
         lanewise!(self.0, other, |m, o| (value & m) | (o & !m))
     }
 
     /// Lanes where `k < values[i]`.
     #[inline(always)]
-    fn below(k: u32, values: [u32; LANES]) -> M8 {
-        let mut out = [0u32; LANES];
-        for i in 0..LANES {
+    fn below(k: u32, values: [u32; PAIR]) -> M16 {
+        let mut out = [0u32; PAIR];
+        for i in 0..PAIR {
             out[i] = if k < values[i] { !0 } else { 0 };
         }
-        M8(out)
+        M16(out)
     }
 }
 
@@ -514,23 +602,24 @@ macro_rules! simd_kernel {
         $(#[$meta])*
         #[allow(clippy::too_many_arguments)]
         fn $name($($arg: $ty),*) {
+            // `FUSED`: whether the body may use fused multiply-adds (see [`mul_add`]).
             #[inline(always)]
             #[allow(clippy::too_many_arguments)]
-            fn body($($arg: $ty),*) $body
+            fn body<const FUSED: bool>($($arg: $ty),*) $body
 
             #[cfg(target_arch = "x86_64")]
             {
                 #[target_feature(enable = "avx2,fma")]
                 #[allow(clippy::too_many_arguments)]
                 fn avx2($($arg: $ty),*) {
-                    body($($arg),*)
+                    body::<true>($($arg),*)
                 }
                 if $crate::raster::has_avx2() {
                     // SAFETY: the CPU supports AVX2 and FMA (checked at run time).
                     return unsafe { avx2($($arg),*) };
                 }
             }
-            body($($arg),*)
+            body::<false>($($arg),*)
         }
     };
 }

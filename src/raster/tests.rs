@@ -207,6 +207,11 @@ fn reference_forward(
     (image, final_t, blended)
 }
 
+/// Gaussian falloff exponent at offset (dx, dy) from the centre, as SPEC §4 writes it.
+fn power(conic: &[f32; 3], dx: f32, dy: f32) -> f32 {
+    -0.5 * (conic[0] * dx * dx + conic[2] * dy * dy) - conic[1] * dx * dy
+}
+
 /// (dx, dy, alpha) of a splat at pixel (x, y), or None where it is not drawn.
 fn reference_alpha(sp: &Splat, x: usize, y: usize) -> Option<(f32, f32, f32)> {
     let dx = x as f32 + 0.5 - sp.mean2d.x;
@@ -215,7 +220,7 @@ fn reference_alpha(sp: &Splat, x: usize, y: usize) -> Option<(f32, f32, f32)> {
     if dx.abs() > sp.extent.x + 1.0 || dy.abs() > sp.extent.y + 1.0 {
         return None;
     }
-    let power = forward::power(&sp.conic, dx, dy);
+    let power = power(&sp.conic, dx, dy);
     if power > 0.0 || power < min_power(sp.opacity) {
         return None;
     }
@@ -254,7 +259,7 @@ fn reference_backward(
             for c in 0..3 {
                 behind[c] = alpha * sp.color[c] + (1.0 - alpha) * behind[c];
             }
-            let raw = sp.opacity * exp_falloff(forward::power(&sp.conic, dx, dy));
+            let raw = sp.opacity * exp_falloff(power(&sp.conic, dx, dy));
             if raw >= ALPHA_MAX {
                 continue;
             }
@@ -460,4 +465,39 @@ fn reused_rasterizer_backward_equals_fresh_one() {
     fresh.forward(&second, w, h, bg, &mut out);
     fresh.backward(&second, &d_color, w, &mut expected);
     assert_eq!(grads, expected);
+}
+
+/// `TADGS_SIMD=baseline` selects the baseline kernels (checked in the child process of
+/// [`baseline_kernels_match_the_reference`]; elsewhere only that the level is one of the two).
+#[test]
+fn simd_level_follows_the_environment() {
+    if std::env::var("TADGS_SIMD").as_deref() == Ok("baseline") {
+        assert_eq!(simd_level(), "baseline");
+    } else {
+        assert!(["baseline", "x86-64 AVX2 + FMA"].contains(&simd_level()));
+    }
+}
+
+/// The baseline kernels (no AVX2, no fused multiply-adds) pass the reference and
+/// finite-difference tests too. The kernel choice is made once per process, so those tests
+/// run again in a child process of this test binary with `TADGS_SIMD=baseline`.
+#[test]
+fn baseline_kernels_match_the_reference() {
+    let tests = [
+        "raster::tests::simd_level_follows_the_environment",
+        "raster::tests::tiled_rasterizer_matches_per_pixel_reference",
+        "raster::tests::backward_matches_finite_differences",
+    ];
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .args(tests)
+        .args(["--exact", "--test-threads", "1"])
+        .env("TADGS_SIMD", "baseline")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "baseline run failed:\n{stdout}");
+    assert!(
+        stdout.contains("3 passed"),
+        "expected 3 tests to run:\n{stdout}"
+    );
 }
