@@ -19,6 +19,8 @@ pub struct TileBins {
     pub sorted_splats: Vec<u32>,
     /// Splats that cover a tile, sorted by key: depth bits (high) and splat index (low).
     sorted_keys: Vec<u64>,
+    /// What the scatter needs of each splat of `sorted_keys`, in the same (depth) order.
+    by_depth: Vec<DepthOrdered>,
     /// Position in the sorted order of each unsorted entry (splat-major order).
     pub sorted_position: Vec<u32>,
     /// Tile t owns sorted entries `tile_offsets[t]..tile_offsets[t+1]`.
@@ -41,6 +43,7 @@ impl TileBins {
             + self.tile_offsets.capacity()
             + self.tile_fill.capacity())
             + 8 * self.sorted_keys.capacity()
+            + std::mem::size_of::<DepthOrdered>() * self.by_depth.capacity()
     }
 
     /// Sorted entries of tile `t`.
@@ -123,25 +126,38 @@ impl TileBins {
         );
         self.sorted_keys.par_sort_unstable();
 
+        // Each band scans every splat in depth order: gather what it reads of them once, so
+        // that the bands read one array front to back instead of jumping around two.
+        let (rects, splat_offsets) = (&self.rects, &self.splat_offsets);
+        self.sorted_keys
+            .par_iter()
+            .map(|&key| {
+                let s = key as u32;
+                DepthOrdered {
+                    splat: s,
+                    first_entry: splat_offsets[s as usize],
+                    rect: rects[s as usize],
+                }
+            })
+            .collect_into_vec(&mut self.by_depth);
+
         // Scatter in depth order, band by band in parallel.
         let total = total as usize;
         self.sorted_splats.resize(total, 0);
         self.sorted_position.resize(total, 0);
         let sorted_splats = Disjoint(self.sorted_splats.as_mut_ptr());
         let sorted_position = Disjoint(self.sorted_position.as_mut_ptr());
-        let (keys, splat_offsets) = (&self.sorted_keys, &self.splat_offsets);
+        let by_depth = &self.by_depth;
         self.tile_fill[..tile_count]
             .par_chunks_mut(tiles_per_band)
             .enumerate()
             .for_each(|(band, fill)| {
                 let rows = band_rows(band, tiles_per_band, fill.len(), tiles_x);
-                for &key in keys {
-                    let s = key as u32;
-                    let r = rects[s as usize];
+                for d in by_depth {
+                    let r = d.rect;
                     let rect_width = (r[2] - r[0]) as usize;
                     for ty in r[1].max(rows.start)..r[3].min(rows.end) {
-                        let mut entry =
-                            splat_offsets[s as usize] as usize + (ty - r[1]) as usize * rect_width;
+                        let mut entry = d.first_entry as usize + (ty - r[1]) as usize * rect_width;
                         let row = (ty - rows.start) as usize * tiles_x;
                         for tx in r[0]..r[2] {
                             let slot = &mut fill[row + tx as usize];
@@ -151,7 +167,7 @@ impl TileBins {
                             // (splat, tile) pair of one of them; no other band writes either,
                             // and both are below `total`, the length of the two buffers.
                             unsafe {
-                                sorted_splats.write(k, s);
+                                sorted_splats.write(k, d.splat);
                                 sorted_position.write(entry, k as u32);
                             }
                             entry += 1;
@@ -160,6 +176,16 @@ impl TileBins {
                 }
             });
     }
+}
+
+/// A splat that covers a tile, as the scatter reads it.
+#[derive(Clone, Copy, Debug, Default)]
+struct DepthOrdered {
+    splat: u32,
+    /// Its first entry in splat-major order.
+    first_entry: u32,
+    /// Its tile rectangle [x0, y0, x1, y1).
+    rect: [u32; 4],
 }
 
 /// Bands of tile rows binned in parallel: a few per thread, so an uneven band does not hold
