@@ -10,7 +10,11 @@
 //!
 //! with `μx = G∗x`, `σx² = G∗x² − μx²`, `σxy = G∗(xy) − μxμy`, and SSIM the mean of the map
 //! over all pixels and channels. The 2-D window is the outer product of a 1-D Gaussian, so it is
-//! applied as two 1-D passes (rows, then columns), each parallel over rows with rayon.
+//! applied as two 1-D passes (rows, then columns). The image is cut into bands of rows, one
+//! rayon task each, and a band streams its rows: each input row is blurred horizontally into a
+//! ring of the window's last eleven rows, and each output row is the vertical blur of the ring.
+//! The blurred statistics never exist as a whole image, so the working set stays in the cache
+//! instead of passing several image-sized buffers through memory.
 //!
 //! # Gradient
 //!
@@ -76,19 +80,34 @@ fn gaussian_window() -> [f32; WIN] {
 pub struct SsimScratch {
     /// 1-D Gaussian window.
     window: [f32; WIN],
-    /// Per-pixel moments (input of the blur, then the blurred statistics).
-    stats: Vec<[f32; NSTAT]>,
-    /// Intermediate of the separable blur of `stats`.
-    stats_tmp: Vec<[f32; NSTAT]>,
-    /// Per-pixel gradient w.r.t. the blurred statistics, then its blur.
+    /// Per-pixel gradient w.r.t. the blurred statistics (the input of the second blur).
     grad: Vec<[f32; NGRAD]>,
-    /// Intermediate of the separable blur of `grad`.
-    grad_tmp: Vec<[f32; NGRAD]>,
+    /// Per-band streaming buffers.
+    bands: Vec<BandScratch>,
     /// SSIM map per pixel, averaged over channels.
     map: Vec<f32>,
     /// Per-row sums of the map over pixels and channels (summed in a fixed order afterwards so
     /// the result does not depend on thread scheduling).
     row_sums: Vec<f64>,
+}
+
+/// One band's streaming buffers: for the statistics and for the gradient maps, a row of input,
+/// the ring of horizontally blurred rows and the blurred output row.
+#[derive(Clone, Debug, Default)]
+struct BandScratch {
+    stats: RowStream<NSTAT>,
+    grad: RowStream<NGRAD>,
+}
+
+/// Rows of a field of `K`-vectors on their way through the separable blur.
+#[derive(Clone, Debug, Default)]
+struct RowStream<const K: usize> {
+    /// The row being blurred horizontally.
+    input: Vec<[f32; K]>,
+    /// Horizontally blurred rows: row q in slot q mod [`WIN`].
+    ring: Vec<[f32; K]>,
+    /// The blurred row handed to the consumer.
+    output: Vec<[f32; K]>,
 }
 
 impl Default for SsimScratch {
@@ -102,10 +121,8 @@ impl SsimScratch {
     pub fn new() -> Self {
         Self {
             window: gaussian_window(),
-            stats: Vec::new(),
-            stats_tmp: Vec::new(),
             grad: Vec::new(),
-            grad_tmp: Vec::new(),
+            bands: Vec::new(),
             map: Vec::new(),
             row_sums: Vec::new(),
         }
@@ -117,53 +134,111 @@ impl SsimScratch {
     }
 }
 
-/// Separable zero-padded Gaussian blur of a `w × h` field of `K`-vectors, in place in `buf`
-/// (`tmp` receives the horizontal pass). Both slices must have length `w·h > 0`.
-fn blur<const K: usize>(
-    buf: &mut [[f32; K]],
-    tmp: &mut [[f32; K]],
-    w: usize,
-    h: usize,
-    g: &[f32; WIN],
-) {
-    debug_assert!(w > 0 && h > 0 && buf.len() == w * h && tmp.len() == w * h);
-    // Both passes are sums of shifted rows, written as one multiply-add per tap over a whole
-    // row of flattened K-vectors, which the compiler vectorises.
-    //
-    // Horizontal pass: tmp(x, y) = Σ_d g[d + R] buf(x + d, y) over in-image x + d.
-    tmp.par_chunks_mut(w)
-        .zip(buf.par_chunks(w))
-        .for_each(|(out, row)| {
-            let (out, row) = (out.as_flattened_mut(), row.as_flattened());
+/// Rows per band: a few bands per thread so an uneven one does not hold the others up, each
+/// long enough that the window's overlap (the ten rows around a band that it blurs again)
+/// stays small.
+fn band_rows(h: usize) -> usize {
+    h.div_ceil(2 * rayon::current_num_threads()).max(2 * WIN)
+}
+
+/// Zero-padded horizontal blur of one row: out(x) = Σ_d g[d + R] row(x + d) over in-image x + d.
+fn blur_row<const K: usize>(row: &[[f32; K]], out: &mut [[f32; K]], g: &[f32; WIN]) {
+    let w = row.len();
+    // One multiply-add per tap over the whole row of flattened K-vectors, which the compiler
+    // vectorises.
+    let (out, row) = (out.as_flattened_mut(), row.as_flattened());
+    out.fill(0.0);
+    for (tap, &wgt) in g.iter().enumerate() {
+        // Pixels x in [x0, x1) read x + tap − R, which is inside the row.
+        let x0 = RADIUS.saturating_sub(tap);
+        let x1 = (w + RADIUS).saturating_sub(tap).min(w);
+        if x0 >= x1 {
+            continue;
+        }
+        let src = &row[(x0 + tap - RADIUS) * K..(x1 + tap - RADIUS) * K];
+        for (o, v) in out[x0 * K..x1 * K].iter_mut().zip(src) {
+            *o += wgt * v;
+        }
+    }
+}
+
+impl<const K: usize> RowStream<K> {
+    /// Separable zero-padded Gaussian blur of a `w × h` field, streamed: for every output row y
+    /// of `rows`, in order, `consume(y, blurred row)`. `fill(q, row)` writes input row q; each
+    /// is asked for once, in order, from the window's first row above `rows` to its last below.
+    fn blur_rows(
+        &mut self,
+        (w, h): (usize, usize),
+        rows: std::ops::Range<usize>,
+        g: &[f32; WIN],
+        mut fill: impl FnMut(usize, &mut [[f32; K]]),
+        mut consume: impl FnMut(usize, &[[f32; K]]),
+    ) {
+        self.input.resize(w, [0.0; K]);
+        self.ring.resize(WIN * w, [0.0; K]);
+        self.output.resize(w, [0.0; K]);
+        let mut next = rows.start.saturating_sub(RADIUS);
+        for y in rows {
+            // Vertical pass: out(x, y) = Σ_q g[q − y + R] blurred(x, q) over in-image rows q.
+            let (lo, hi) = (y.saturating_sub(RADIUS), (y + RADIUS).min(h - 1));
+            while next <= hi {
+                fill(next, &mut self.input);
+                let slot = next % WIN * w;
+                blur_row(&self.input, &mut self.ring[slot..slot + w], g);
+                next += 1;
+            }
+            let out = self.output.as_flattened_mut();
             out.fill(0.0);
-            for (tap, &wgt) in g.iter().enumerate() {
-                // Pixels x in [x0, x1) read x + tap − R, which is inside the row.
-                let x0 = RADIUS.saturating_sub(tap);
-                let x1 = (w + RADIUS).saturating_sub(tap).min(w);
-                if x0 >= x1 {
-                    continue;
-                }
-                let src = &row[(x0 + tap - RADIUS) * K..(x1 + tap - RADIUS) * K];
-                for (o, v) in out[x0 * K..x1 * K].iter_mut().zip(src) {
+            for q in lo..=hi {
+                let wgt = g[q + RADIUS - y];
+                let slot = q % WIN * w;
+                let src = self.ring[slot..slot + w].as_flattened();
+                for (o, v) in out.iter_mut().zip(src) {
                     *o += wgt * v;
                 }
             }
-        });
-    // Vertical pass: buf(x, y) = Σ_q g[q − y + R] tmp(x, q) over in-image rows q.
-    let tmp: &[[f32; K]] = tmp;
-    buf.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
-        let out = out.as_flattened_mut();
-        out.fill(0.0);
-        let lo = y.saturating_sub(RADIUS);
-        let hi = (y + RADIUS).min(h - 1);
-        for q in lo..=hi {
-            let wgt = g[q + RADIUS - y];
-            let src = tmp[q * w..(q + 1) * w].as_flattened();
-            for (o, v) in out.iter_mut().zip(src) {
-                *o += wgt * v;
+            consume(y, &self.output);
+        }
+    }
+}
+
+/// SSIM map values of one row of blurred statistics, summed over the row (f64); with
+/// `grad_row`, also the per-pixel gradient w.r.t. the blurred statistics, scaled by
+/// `inv_count`.
+fn map_row(
+    st: &[[f32; NSTAT]],
+    map_row: &mut [f32],
+    mut grad_row: Option<&mut [[f32; NGRAD]]>,
+    inv_count: f32,
+) -> f64 {
+    let mut sum = 0.0f64;
+    for (i, s) in st.iter().enumerate() {
+        let mut pix = 0.0f32;
+        for c in 0..3 {
+            let (mx, my) = (s[c], s[3 + c]);
+            let sxx = s[6 + c] - mx * mx;
+            let syy = s[9 + c] - my * my;
+            let sxy = s[12 + c] - mx * my;
+            let a = 2.0 * mx * my + C1;
+            let b = 2.0 * sxy + C2;
+            let cc = mx * mx + my * my + C1;
+            let d = sxx + syy + C2;
+            let inv_cd = 1.0 / (cc * d);
+            let m = a * b * inv_cd;
+            pix += m;
+            if let Some(gr) = grad_row.as_deref_mut() {
+                let dm_dmx = 2.0 * my * b * inv_cd - 2.0 * mx * m / cc;
+                let dm_dsxx = -m / d;
+                let dm_dsxy = 2.0 * a * inv_cd;
+                gr[i][c] = (dm_dmx - 2.0 * mx * dm_dsxx - my * dm_dsxy) * inv_count;
+                gr[i][3 + c] = dm_dsxx * inv_count;
+                gr[i][6 + c] = dm_dsxy * inv_count;
             }
         }
-    });
+        sum += pix as f64;
+        map_row[i] = pix / 3.0;
+    }
+    sum
 }
 
 /// Core evaluation: fills `scratch.map`, returns the mean SSIM, and, when `d_img` is given,
@@ -190,102 +265,91 @@ fn evaluate(
     }
     let SsimScratch {
         window,
-        stats,
-        stats_tmp,
         grad,
-        grad_tmp,
+        bands,
         map,
         row_sums,
     } = scratch;
     let g = &*window;
-    stats.resize(n, [0.0; NSTAT]);
-    stats_tmp.resize(n, [0.0; NSTAT]);
+    let rows_per_band = band_rows(h);
+    bands.resize_with(h.div_ceil(rows_per_band), BandScratch::default);
     row_sums.resize(h, 0.0);
-
-    // Per-pixel moments, then their blur.
-    stats
-        .par_chunks_mut(w)
-        .zip(img.data.par_chunks(w))
-        .zip(gt.data.par_chunks(w))
-        .for_each(|((out, xs), ys)| {
-            for ((s, x), y) in out.iter_mut().zip(xs).zip(ys) {
-                for c in 0..3 {
-                    s[c] = x[c];
-                    s[3 + c] = y[c];
-                    s[6 + c] = x[c] * x[c];
-                    s[9 + c] = y[c] * y[c];
-                    s[12 + c] = x[c] * y[c];
-                }
-            }
-        });
-    blur(stats, stats_tmp, w, h, g);
-
     let want_grad = d_img.is_some();
     if want_grad {
         grad.resize(n, [0.0; NGRAD]);
-        grad_tmp.resize(n, [0.0; NGRAD]);
     }
     // Scale of the mean: every map value contributes 1/(3n).
     let inv_count = 1.0 / (3 * n) as f32;
-    let stats: &[[f32; NSTAT]] = stats;
-    let per_row = map
-        .par_chunks_mut(w)
-        .zip(row_sums.par_iter_mut())
-        .zip(stats.par_chunks(w));
-    let map_row = |((map_row, row_sum), st): ((&mut [f32], &mut f64), &[[f32; NSTAT]]),
-                   mut grad_row: Option<&mut [[f32; NGRAD]]>| {
-        let mut sum = 0.0f64;
-        for (i, s) in st.iter().enumerate() {
-            let mut pix = 0.0f32;
+    let band_pixels = rows_per_band * w;
+
+    // Per-pixel moments, blurred, then the map and its gradient w.r.t. the blurred moments.
+    let moments = |q: usize, row: &mut [[f32; NSTAT]]| {
+        let (xs, ys) = (&img.data[q * w..(q + 1) * w], &gt.data[q * w..(q + 1) * w]);
+        for ((s, x), y) in row.iter_mut().zip(xs).zip(ys) {
             for c in 0..3 {
-                let (mx, my) = (s[c], s[3 + c]);
-                let sxx = s[6 + c] - mx * mx;
-                let syy = s[9 + c] - my * my;
-                let sxy = s[12 + c] - mx * my;
-                let a = 2.0 * mx * my + C1;
-                let b = 2.0 * sxy + C2;
-                let cc = mx * mx + my * my + C1;
-                let d = sxx + syy + C2;
-                let inv_cd = 1.0 / (cc * d);
-                let m = a * b * inv_cd;
-                pix += m;
-                if let Some(gr) = grad_row.as_deref_mut() {
-                    let dm_dmx = 2.0 * my * b * inv_cd - 2.0 * mx * m / cc;
-                    let dm_dsxx = -m / d;
-                    let dm_dsxy = 2.0 * a * inv_cd;
-                    gr[i][c] = (dm_dmx - 2.0 * mx * dm_dsxx - my * dm_dsxy) * inv_count;
-                    gr[i][3 + c] = dm_dsxx * inv_count;
-                    gr[i][6 + c] = dm_dsxy * inv_count;
-                }
+                s[c] = x[c];
+                s[3 + c] = y[c];
+                s[6 + c] = x[c] * x[c];
+                s[9 + c] = y[c] * y[c];
+                s[12 + c] = x[c] * y[c];
             }
-            sum += pix as f64;
-            map_row[i] = pix / 3.0;
         }
-        *row_sum = sum;
     };
+    let first_pass = |(band, ((band_scratch, map), row_sums)): (
+        usize,
+        ((&mut BandScratch, &mut [f32]), &mut [f64]),
+    ),
+                      mut grad: Option<&mut [[f32; NGRAD]]>| {
+        let first = band * rows_per_band;
+        let rows = first..first + row_sums.len();
+        band_scratch
+            .stats
+            .blur_rows((w, h), rows, g, moments, |y, st| {
+                let local = (y - first) * w..(y - first + 1) * w;
+                let grad_row = grad.as_deref_mut().map(|gr| &mut gr[local.clone()]);
+                row_sums[y - first] = map_row(st, &mut map[local], grad_row, inv_count);
+            });
+    };
+    let bands_iter = bands
+        .par_iter_mut()
+        .zip(map.par_chunks_mut(band_pixels))
+        .zip(row_sums.par_chunks_mut(rows_per_band))
+        .enumerate();
     if want_grad {
-        per_row
-            .zip(grad.par_chunks_mut(w))
-            .for_each(|(r, gr)| map_row(r, Some(gr)));
+        bands_iter
+            .zip(grad.par_chunks_mut(band_pixels))
+            .for_each(|(band, gr)| first_pass(band, Some(gr)));
     } else {
-        per_row.for_each(|r| map_row(r, None));
+        bands_iter.for_each(|band| first_pass(band, None));
     }
     let mean = (row_sums.iter().sum::<f64>() / (3 * n) as f64) as f32;
 
+    // dSSIM/dx(q) = (G gμ)(q) + 2·x(q)·(G gxx)(q) + y(q)·(G gxy)(q), band by band.
     if let Some(d_img) = d_img {
-        blur(grad, grad_tmp, w, h, g);
         let grad: &[[f32; NGRAD]] = grad;
-        d_img
-            .par_chunks_mut(w)
-            .zip(grad.par_chunks(w))
-            .zip(img.data.par_chunks(w))
-            .zip(gt.data.par_chunks(w))
-            .for_each(|(((out, gb), xs), ys)| {
-                for (((o, gb), x), y) in out.iter_mut().zip(gb).zip(xs).zip(ys) {
-                    for c in 0..3 {
-                        o[c] = gb[c] + 2.0 * x[c] * gb[3 + c] + y[c] * gb[6 + c];
-                    }
-                }
+        bands
+            .par_iter_mut()
+            .zip(d_img.par_chunks_mut(band_pixels))
+            .enumerate()
+            .for_each(|(band, (band_scratch, d_band))| {
+                let first = band * rows_per_band;
+                let rows = first..first + d_band.len() / w;
+                band_scratch.grad.blur_rows(
+                    (w, h),
+                    rows,
+                    g,
+                    |q, row| row.copy_from_slice(&grad[q * w..(q + 1) * w]),
+                    |y, gb| {
+                        let out = &mut d_band[(y - first) * w..(y - first + 1) * w];
+                        let (xs, ys) =
+                            (&img.data[y * w..(y + 1) * w], &gt.data[y * w..(y + 1) * w]);
+                        for (((o, gb), x), yv) in out.iter_mut().zip(gb).zip(xs).zip(ys) {
+                            for c in 0..3 {
+                                o[c] = gb[c] + 2.0 * x[c] * gb[3 + c] + yv[c] * gb[6 + c];
+                            }
+                        }
+                    },
+                );
             });
     }
     mean
@@ -559,10 +623,9 @@ pub(crate) mod tests {
         let mut d = vec![[0.0f32; 3]; 20 * 14];
         let first = ssim_with_grad(&mut scratch, &a, &b, &mut d);
         let ptrs = (
-            scratch.stats.as_ptr(),
-            scratch.stats_tmp.as_ptr(),
+            scratch.bands[0].stats.ring.as_ptr(),
+            scratch.bands[0].grad.ring.as_ptr(),
             scratch.grad.as_ptr(),
-            scratch.grad_tmp.as_ptr(),
             scratch.map.as_ptr(),
             scratch.row_sums.as_ptr(),
         );
@@ -572,10 +635,9 @@ pub(crate) mod tests {
         assert_eq!(d, d_first);
         assert_eq!(ssim_with_scratch(&mut scratch, &a, &b), first);
         let ptrs_after = (
-            scratch.stats.as_ptr(),
-            scratch.stats_tmp.as_ptr(),
+            scratch.bands[0].stats.ring.as_ptr(),
+            scratch.bands[0].grad.ring.as_ptr(),
             scratch.grad.as_ptr(),
-            scratch.grad_tmp.as_ptr(),
             scratch.map.as_ptr(),
             scratch.row_sums.as_ptr(),
         );
