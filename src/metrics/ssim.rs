@@ -142,6 +142,7 @@ fn band_rows(h: usize) -> usize {
 }
 
 /// Zero-padded horizontal blur of one row: out(x) = Σ_d g[d + R] row(x + d) over in-image x + d.
+#[inline(always)]
 fn blur_row<const K: usize>(row: &[[f32; K]], out: &mut [[f32; K]], g: &[f32; WIN]) {
     let w = row.len();
     // One multiply-add per tap over the whole row of flattened K-vectors, which the compiler
@@ -166,6 +167,7 @@ impl<const K: usize> RowStream<K> {
     /// Separable zero-padded Gaussian blur of a `w × h` field, streamed: for every output row y
     /// of `rows`, in order, `consume(y, blurred row)`. `fill(q, row)` writes input row q; each
     /// is asked for once, in order, from the window's first row above `rows` to its last below.
+    #[inline(always)]
     fn blur_rows(
         &mut self,
         (w, h): (usize, usize),
@@ -205,6 +207,7 @@ impl<const K: usize> RowStream<K> {
 /// SSIM map values of one row of blurred statistics, summed over the row (f64); with
 /// `grad_row`, also the per-pixel gradient w.r.t. the blurred statistics, scaled by
 /// `inv_count`.
+#[inline(always)]
 fn map_row(
     st: &[[f32; NSTAT]],
     map_row: &mut [f32],
@@ -239,6 +242,75 @@ fn map_row(
         map_row[i] = pix / 3.0;
     }
     sum
+}
+
+crate::raster::simd_kernel! {
+    /// The map, its row sums and (with `grad`) the gradient w.r.t. the blurred moments for the
+    /// band of rows starting at `first` (as many as `row_sums` holds).
+    fn map_band(
+        images: (&Image, &Image),
+        g: &[f32; WIN],
+        first: usize,
+        scratch: &mut BandScratch,
+        map: &mut [f32],
+        row_sums: &mut [f64],
+        grad: Option<&mut [[f32; NGRAD]]>,
+        inv_count: f32,
+    ) {
+        let (img, gt) = images;
+        let (w, h) = (img.width, img.height);
+        let mut grad = grad;
+        let moments = |q: usize, row: &mut [[f32; NSTAT]]| {
+            let (xs, ys) = (&img.data[q * w..(q + 1) * w], &gt.data[q * w..(q + 1) * w]);
+            for ((s, x), y) in row.iter_mut().zip(xs).zip(ys) {
+                for c in 0..3 {
+                    s[c] = x[c];
+                    s[3 + c] = y[c];
+                    s[6 + c] = x[c] * x[c];
+                    s[9 + c] = y[c] * y[c];
+                    s[12 + c] = x[c] * y[c];
+                }
+            }
+        };
+        let rows = first..first + row_sums.len();
+        scratch.stats.blur_rows((w, h), rows, g, moments, |y, st| {
+            let local = (y - first) * w..(y - first + 1) * w;
+            let grad_row = grad.as_deref_mut().map(|gr| &mut gr[local.clone()]);
+            row_sums[y - first] = map_row(st, &mut map[local], grad_row, inv_count);
+        });
+    }
+}
+
+crate::raster::simd_kernel! {
+    /// dSSIM/d(img) for the band of rows starting at `first` (as many as `d_band` holds): the
+    /// blur of the gradient maps `grad`, combined with the image values.
+    fn gradient_band(
+        images: (&Image, &Image),
+        g: &[f32; WIN],
+        first: usize,
+        grad: &[[f32; NGRAD]],
+        scratch: &mut BandScratch,
+        d_band: &mut [[f32; 3]],
+    ) {
+        let (img, gt) = images;
+        let (w, h) = (img.width, img.height);
+        let rows = first..first + d_band.len() / w;
+        scratch.grad.blur_rows(
+            (w, h),
+            rows,
+            g,
+            |q, row| row.copy_from_slice(&grad[q * w..(q + 1) * w]),
+            |y, gb| {
+                let out = &mut d_band[(y - first) * w..(y - first + 1) * w];
+                let (xs, ys) = (&img.data[y * w..(y + 1) * w], &gt.data[y * w..(y + 1) * w]);
+                for (((o, gb), x), yv) in out.iter_mut().zip(gb).zip(xs).zip(ys) {
+                    for c in 0..3 {
+                        o[c] = gb[c] + 2.0 * x[c] * gb[3 + c] + yv[c] * gb[6 + c];
+                    }
+                }
+            },
+        );
+    }
 }
 
 /// Core evaluation: fills `scratch.map`, returns the mean SSIM, and, when `d_img` is given,
@@ -282,45 +354,41 @@ fn evaluate(
     let inv_count = 1.0 / (3 * n) as f32;
     let band_pixels = rows_per_band * w;
 
-    // Per-pixel moments, blurred, then the map and its gradient w.r.t. the blurred moments.
-    let moments = |q: usize, row: &mut [[f32; NSTAT]]| {
-        let (xs, ys) = (&img.data[q * w..(q + 1) * w], &gt.data[q * w..(q + 1) * w]);
-        for ((s, x), y) in row.iter_mut().zip(xs).zip(ys) {
-            for c in 0..3 {
-                s[c] = x[c];
-                s[3 + c] = y[c];
-                s[6 + c] = x[c] * x[c];
-                s[9 + c] = y[c] * y[c];
-                s[12 + c] = x[c] * y[c];
-            }
-        }
-    };
-    let first_pass = |(band, ((band_scratch, map), row_sums)): (
-        usize,
-        ((&mut BandScratch, &mut [f32]), &mut [f64]),
-    ),
-                      mut grad: Option<&mut [[f32; NGRAD]]>| {
-        let first = band * rows_per_band;
-        let rows = first..first + row_sums.len();
-        band_scratch
-            .stats
-            .blur_rows((w, h), rows, g, moments, |y, st| {
-                let local = (y - first) * w..(y - first + 1) * w;
-                let grad_row = grad.as_deref_mut().map(|gr| &mut gr[local.clone()]);
-                row_sums[y - first] = map_row(st, &mut map[local], grad_row, inv_count);
-            });
-    };
+    // Per band: the moments, blurred, then the map and its gradient w.r.t. the blurred moments.
+    let images = (img, gt);
     let bands_iter = bands
         .par_iter_mut()
         .zip(map.par_chunks_mut(band_pixels))
         .zip(row_sums.par_chunks_mut(rows_per_band))
         .enumerate();
     if want_grad {
-        bands_iter
-            .zip(grad.par_chunks_mut(band_pixels))
-            .for_each(|(band, gr)| first_pass(band, Some(gr)));
+        bands_iter.zip(grad.par_chunks_mut(band_pixels)).for_each(
+            |((band, ((scratch, map), sums)), gr)| {
+                map_band(
+                    images,
+                    g,
+                    band * rows_per_band,
+                    scratch,
+                    map,
+                    sums,
+                    Some(gr),
+                    inv_count,
+                )
+            },
+        );
     } else {
-        bands_iter.for_each(|band| first_pass(band, None));
+        bands_iter.for_each(|(band, ((scratch, map), sums))| {
+            map_band(
+                images,
+                g,
+                band * rows_per_band,
+                scratch,
+                map,
+                sums,
+                None,
+                inv_count,
+            )
+        });
     }
     let mean = (row_sums.iter().sum::<f64>() / (3 * n) as f64) as f32;
 
@@ -331,25 +399,8 @@ fn evaluate(
             .par_iter_mut()
             .zip(d_img.par_chunks_mut(band_pixels))
             .enumerate()
-            .for_each(|(band, (band_scratch, d_band))| {
-                let first = band * rows_per_band;
-                let rows = first..first + d_band.len() / w;
-                band_scratch.grad.blur_rows(
-                    (w, h),
-                    rows,
-                    g,
-                    |q, row| row.copy_from_slice(&grad[q * w..(q + 1) * w]),
-                    |y, gb| {
-                        let out = &mut d_band[(y - first) * w..(y - first + 1) * w];
-                        let (xs, ys) =
-                            (&img.data[y * w..(y + 1) * w], &gt.data[y * w..(y + 1) * w]);
-                        for (((o, gb), x), yv) in out.iter_mut().zip(gb).zip(xs).zip(ys) {
-                            for c in 0..3 {
-                                o[c] = gb[c] + 2.0 * x[c] * gb[3 + c] + yv[c] * gb[6 + c];
-                            }
-                        }
-                    },
-                );
+            .for_each(|(band, (scratch, d_band))| {
+                gradient_band(images, g, band * rows_per_band, grad, scratch, d_band)
             });
     }
     mean

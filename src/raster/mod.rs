@@ -628,7 +628,7 @@ pub(crate) use simd_kernel;
 /// Whether the pixel loops run their AVX2 versions: when this CPU has AVX2 and FMA, unless
 /// `TADGS_SIMD=baseline` asks for the baseline ones (to compare them). Decided once.
 #[inline]
-fn has_avx2() -> bool {
+pub(crate) fn has_avx2() -> bool {
     static AVX2: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *AVX2.get_or_init(|| {
         #[cfg(target_arch = "x86_64")]
