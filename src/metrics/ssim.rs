@@ -313,6 +313,9 @@ crate::raster::simd_kernel! {
     }
 }
 
+/// What the first pass hands each band: its index, buffers, map rows and row sums.
+type BandChunks<'a> = (usize, ((&'a mut BandScratch, &'a mut [f32]), &'a mut [f64]));
+
 /// Core evaluation: fills `scratch.map`, returns the mean SSIM, and, when `d_img` is given,
 /// writes dSSIM/d(img) into it.
 fn evaluate(
@@ -361,34 +364,17 @@ fn evaluate(
         .zip(map.par_chunks_mut(band_pixels))
         .zip(row_sums.par_chunks_mut(rows_per_band))
         .enumerate();
+    let band = |(band, ((scratch, map), sums)): BandChunks<'_>,
+                grad: Option<&mut [[f32; NGRAD]]>| {
+        let first = band * rows_per_band;
+        map_band(images, g, first, scratch, map, sums, grad, inv_count)
+    };
     if want_grad {
-        bands_iter.zip(grad.par_chunks_mut(band_pixels)).for_each(
-            |((band, ((scratch, map), sums)), gr)| {
-                map_band(
-                    images,
-                    g,
-                    band * rows_per_band,
-                    scratch,
-                    map,
-                    sums,
-                    Some(gr),
-                    inv_count,
-                )
-            },
-        );
+        bands_iter
+            .zip(grad.par_chunks_mut(band_pixels))
+            .for_each(|(b, gr)| band(b, Some(gr)));
     } else {
-        bands_iter.for_each(|(band, ((scratch, map), sums))| {
-            map_band(
-                images,
-                g,
-                band * rows_per_band,
-                scratch,
-                map,
-                sums,
-                None,
-                inv_count,
-            )
-        });
+        bands_iter.for_each(|b| band(b, None));
     }
     let mean = (row_sums.iter().sum::<f64>() / (3 * n) as f64) as f32;
 
