@@ -210,7 +210,7 @@ impl<const K: usize> RowStream<K> {
 #[inline(always)]
 fn map_row(
     st: &[[f32; NSTAT]],
-    map_row: &mut [f32],
+    map: &mut [f32],
     mut grad_row: Option<&mut [[f32; NGRAD]]>,
     inv_count: f32,
 ) -> f64 {
@@ -239,7 +239,7 @@ fn map_row(
             }
         }
         sum += pix as f64;
-        map_row[i] = pix / 3.0;
+        map[i] = pix / 3.0;
     }
     sum
 }

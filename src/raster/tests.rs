@@ -467,15 +467,22 @@ fn reused_rasterizer_backward_equals_fresh_one() {
     assert_eq!(grads, expected);
 }
 
-/// `TADGS_SIMD=baseline` selects the baseline kernels (checked in the child process of
-/// [`baseline_kernels_match_the_reference`]; elsewhere only that the level is one of the two).
+/// The kernels follow the CPU: the AVX2 ones exactly where it has AVX2 and FMA, unless
+/// `TADGS_SIMD=baseline` asks for the baseline ones (as in the child process of
+/// [`baseline_kernels_match_the_reference`]).
 #[test]
 fn simd_level_follows_the_environment() {
-    if std::env::var("TADGS_SIMD").as_deref() == Ok("baseline") {
-        assert_eq!(simd_level(), "baseline");
+    #[cfg(target_arch = "x86_64")]
+    let detected = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+    #[cfg(not(target_arch = "x86_64"))]
+    let detected = false;
+    let forced = std::env::var("TADGS_SIMD").as_deref() == Ok("baseline");
+    let expected = if detected && !forced {
+        "x86-64 AVX2 + FMA"
     } else {
-        assert!(["baseline", "x86-64 AVX2 + FMA"].contains(&simd_level()));
-    }
+        "baseline"
+    };
+    assert_eq!(simd_level(), expected);
 }
 
 /// The baseline kernels (no AVX2, no fused multiply-adds) pass the reference and
