@@ -51,8 +51,9 @@ pub fn benchmark_gaussians(n: usize, seed: u64, motion: bool) -> Vec<GaussianPar
             let mut q = [0f32; 4];
             q.iter_mut().for_each(|c| *c = rng.sample(StandardNormal));
             let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
-            let mut color = Color::default();
-            color.sh[0] = [rng.random::<f32>(), rng.random(), rng.random()].map(rgb_to_sh_dc);
+            let color = Color {
+                dc: [rng.random::<f32>(), rng.random(), rng.random()].map(rgb_to_sh_dc),
+            };
             let mut params = GaussianParams {
                 position: Position {
                     mean: [
@@ -134,10 +135,13 @@ pub fn benchmark_world_on(
     config.train.backend = backend;
     let mut world = World::new();
     insert_resources(&mut world, &config, Arc::new(dataset))?;
-    world.spawn_batch(
-        benchmark_gaussians(n, 42, motion)
-            .into_iter()
-            .map(GaussianParams::bundle)
+    let gaussians = benchmark_gaussians(n, 42, motion);
+    spawn_gaussians(
+        &mut world,
+        config.model.sh_degree,
+        gaussians
+            .iter()
+            .map(|g| (g.bundle(), g.color_rest_bundle()))
             .collect::<Vec<_>>(),
     );
     Ok(world)
@@ -420,7 +424,12 @@ pub fn run(
         visible,
         intersections,
         stages: samples.medians(),
-        component_bytes: std::mem::size_of::<GaussianBundle>(),
+        component_bytes: gaussian_bytes(
+            world
+                .resource::<crate::resources::Settings>()
+                .model
+                .sh_degree,
+        ),
         scratch_bytes: scratch as f64 / n as f64,
     })
 }

@@ -19,7 +19,7 @@
 
 use std::mem::size_of;
 
-use crate::components::{Deformed, GaussianBundle};
+use crate::components::{Deformed, gaussian_bytes};
 use crate::data::Dataset;
 use crate::data::init::anchor_frames;
 use crate::raster::{Splat, SplatGrad};
@@ -38,10 +38,10 @@ pub const TILES_PER_GAUSSIAN: usize = 4;
 /// Allowance for growable arrays (doubling capacity), ECS tables and the allocator.
 pub const HEADROOM: f64 = 1.25;
 
-/// Bytes one Gaussian costs while training.
-pub fn bytes_per_gaussian() -> usize {
+/// Bytes one Gaussian of a model of SH degree `sh_degree` costs while training.
+pub fn bytes_per_gaussian(sh_degree: u32) -> usize {
     // ECS storage: the components plus the entity id in its table and its location record.
-    let ecs = size_of::<GaussianBundle>() + 8 + 16;
+    let ecs = gaussian_bytes(sh_degree) + 8 + 16;
     // Splatting arrays indexed by slot: deformed values, splat, gradients, NDC gradient norm,
     // tile rectangle and entry offset.
     let slots = size_of::<Deformed>()
@@ -104,7 +104,7 @@ impl MemoryEstimate {
         Self {
             images: dataset.memory_bytes() as u64,
             pixel_buffers: (width as u64) * (height as u64) * BYTES_PER_PIXEL as u64,
-            per_gaussian: (bytes_per_gaussian() as f64 * HEADROOM).ceil() as u64,
+            per_gaussian: (bytes_per_gaussian(scene.model.sh_degree) as f64 * HEADROOM).ceil() as u64,
             initial_gaussians: (anchors * scene.init.points_per_anchor) as u64,
             max_gaussians: scene.densify.max_gaussians as u64,
         }
@@ -249,9 +249,16 @@ mod tests {
     }
 
     /// The per-Gaussian cost counts at least the parameters, gradients and both Adam
-    /// moments of every parameter component (4 copies of 388 bytes).
+    /// moments of every parameter component: 4 copies of 388 bytes with every SH band, of
+    /// 208 bytes at SH degree 0 (the higher bands are not stored).
     #[test]
     fn per_gaussian_bytes_cover_the_optimiser_state() {
-        assert!(bytes_per_gaussian() >= 4 * 388, "{}", bytes_per_gaussian());
+        assert!(bytes_per_gaussian(3) >= 4 * 388, "{}", bytes_per_gaussian(3));
+        assert!(bytes_per_gaussian(0) >= 4 * 208, "{}", bytes_per_gaussian(0));
+        assert_eq!(
+            bytes_per_gaussian(3) - bytes_per_gaussian(0),
+            4 * 180,
+            "the higher bands: 45 values in 4 copies"
+        );
     }
 }

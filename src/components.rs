@@ -5,6 +5,7 @@
 //! the pruner treat every field alike.
 
 use bevy_ecs::component::{Component, Mutable};
+use bevy_ecs::world::World;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -75,19 +76,51 @@ pub struct Scale {
     pub d1: [f32; 3],
 }
 
-/// Spherical-harmonic colour coefficients up to degree 3 (band 0 is the DC term).
-#[derive(Component, Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+/// Band-0 (DC) spherical-harmonic coefficient of each channel: the view-independent colour.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Color {
-    /// `sh[k][c]`: coefficient k (band by band in the 3DGS basis order, k < (degree + 1)²) of
-    /// channel c (r, g, b); rgb = Σ basis·sh + 0.5, clamped ≥ 0.
-    pub sh: [[f32; 3]; SH_COEFFS],
+    /// `dc[c]`: the band-0 coefficient of channel c (r, g, b); with [`ColorRest`],
+    /// rgb = Σ basis·sh + 0.5, clamped ≥ 0.
+    pub dc: [f32; 3],
 }
 
-impl Default for Color {
+/// Spherical-harmonic coefficients of bands 1–3: the view-dependent colour.
+///
+/// Only the Gaussians of a model whose `sh_degree` is above 0 carry it (with its [`Grad`] and
+/// [`Adam`]); a degree-0 model does not hold 720 bytes per Gaussian of coefficients it never
+/// uses. Systems read it as `Option<&ColorRest>`: a Gaussian without it has zero coefficients.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[repr(C)]
+pub struct ColorRest {
+    /// `sh[k - 1][c]`: coefficient k ≥ 1 (band by band in the 3DGS basis order) of channel c.
+    pub sh: [[f32; 3]; SH_COEFFS - 1],
+}
+
+impl Default for ColorRest {
     fn default() -> Self {
         Self::zeroed()
     }
+}
+
+/// All SH coefficients of one Gaussian, band 0 first (`sh[k][c]`, k < 16).
+pub type ShCoefficients = [[f32; 3]; SH_COEFFS];
+
+/// Joins the DC term and the optional higher bands into the full coefficient set.
+pub fn sh_coefficients(color: &Color, rest: Option<&ColorRest>) -> ShCoefficients {
+    let mut sh = [[0.0; 3]; SH_COEFFS];
+    sh[0] = color.dc;
+    if let Some(rest) = rest {
+        sh[1..].copy_from_slice(&rest.sh);
+    }
+    sh
+}
+
+/// Splits a full coefficient set into its DC term and higher bands.
+pub fn split_sh(sh: &ShCoefficients) -> (Color, ColorRest) {
+    let mut rest = ColorRest::default();
+    rest.sh.copy_from_slice(&sh[1..]);
+    (Color { dc: sh[0] }, rest)
 }
 
 /// Densification statistics accumulated since the last densification step.
@@ -176,6 +209,7 @@ params!(
     Rotation => "rotation",
     Scale => "scale",
     Color => "color",
+    ColorRest => "color_rest",
 );
 
 /// This iteration's gradient of the loss with respect to parameter component `P`.
@@ -208,8 +242,10 @@ pub struct GaussianParams {
     pub rotation: Rotation,
     /// Log-scale polynomial.
     pub scale: Scale,
-    /// SH colour.
+    /// SH colour, band 0.
     pub color: Color,
+    /// SH colour, bands 1–3 (spawned only when the model's SH degree is above 0).
+    pub color_rest: ColorRest,
 }
 
 /// The parameter components of one Gaussian, as a read-only query.
@@ -221,12 +257,13 @@ pub type ParamRefs<'a> = (
     &'a Rotation,
     &'a Scale,
     &'a Color,
+    Option<&'a ColorRest>,
 );
 
 impl GaussianParams {
     /// Copies the components of a [`ParamRefs`] query item.
     pub fn from_refs(refs: ParamRefs<'_>) -> Self {
-        let (position, fourier, temporal, opacity, rotation, scale, color) = refs;
+        let (position, fourier, temporal, opacity, rotation, scale, color, color_rest) = refs;
         Self {
             position: *position,
             fourier: *fourier,
@@ -235,7 +272,19 @@ impl GaussianParams {
             rotation: *rotation,
             scale: *scale,
             color: *color,
+            color_rest: color_rest.copied().unwrap_or_default(),
         }
+    }
+
+    /// All SH coefficients, band 0 first.
+    pub fn sh(&self) -> ShCoefficients {
+        sh_coefficients(&self.color, Some(&self.color_rest))
+    }
+
+    /// The higher SH bands with zeroed gradient and Adam moments, for spawning beside
+    /// [`Self::bundle`].
+    pub fn color_rest_bundle(&self) -> ColorRestBundle {
+        (self.color_rest, Grad::default(), Adam::default())
     }
 
     /// The full component bundle for spawning this Gaussian.
@@ -261,7 +310,36 @@ impl GaussianParams {
     }
 }
 
-/// Every component of one Gaussian.
+/// The higher SH bands of one Gaussian with their gradient and Adam moments: spawned with its
+/// [`GaussianBundle`] when the model's SH degree is above 0.
+pub type ColorRestBundle = (ColorRest, Grad<ColorRest>, Adam<ColorRest>);
+
+/// Heap bytes of the components of one Gaussian of a model of SH degree `sh_degree`.
+pub fn gaussian_bytes(sh_degree: u32) -> usize {
+    let rest = if sh_degree > 0 {
+        std::mem::size_of::<ColorRestBundle>()
+    } else {
+        0
+    };
+    std::mem::size_of::<GaussianBundle>() + rest
+}
+
+/// Spawns Gaussians, with their higher SH bands only when `sh_degree` (the model's highest
+/// degree) is above 0.
+pub fn spawn_gaussians(
+    world: &mut World,
+    sh_degree: u32,
+    gaussians: impl IntoIterator<Item = (GaussianBundle, ColorRestBundle)>,
+) {
+    let gaussians = gaussians.into_iter();
+    if sh_degree > 0 {
+        world.spawn_batch(gaussians);
+    } else {
+        world.spawn_batch(gaussians.map(|(bundle, _)| bundle));
+    }
+}
+
+/// Every component of one Gaussian but the higher SH bands ([`ColorRestBundle`]).
 pub type GaussianBundle = (
     (Position, Fourier, Temporal, Opacity, Rotation, Scale, Color),
     OptimizerState,

@@ -8,7 +8,8 @@ use rand::SeedableRng;
 
 use crate::budget::{self, BudgetError, MemoryEstimate};
 use crate::components::{
-    Color, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
+    Color, ColorRest, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
+    spawn_gaussians,
 };
 use crate::data::carve::{self, CarveError};
 use crate::data::init::{
@@ -175,6 +176,7 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
         spawned += points.len();
         spawn_points(
             world,
+            scene.model.sh_degree,
             &points,
             dataset.frame_time(frame),
             temporal_scale,
@@ -224,9 +226,11 @@ fn anchor_points(
     }
 }
 
-/// Spawns one Gaussian per point at temporal centre `center`.
+/// Spawns one Gaussian per point at temporal centre `center`, for a model of SH degree
+/// `sh_degree`.
 pub fn spawn_points(
     world: &mut World,
+    sh_degree: u32,
     points: &[InitPoint],
     center: f32,
     temporal_scale: [f32; 2],
@@ -234,38 +238,35 @@ pub fn spawn_points(
 ) {
     let positions: Vec<glam::Vec3> = points.iter().map(|p| p.position).collect();
     let scales = nearest_neighbour_scales(&positions);
-    let bundles: Vec<_> = points
-        .iter()
-        .zip(scales)
-        .map(|(p, s)| {
-            let mut color = Color::default();
-            color.sh[0] = p.color.map(rgb_to_sh_dc);
-            GaussianParams {
-                position: Position {
-                    mean: p.position.to_array(),
-                },
-                fourier: Fourier::default(),
-                temporal: Temporal {
-                    center,
-                    scale: temporal_scale,
-                },
-                opacity: Opacity {
-                    logit: logit(opacity),
-                },
-                rotation: Rotation {
-                    c0: [1.0, 0.0, 0.0, 0.0],
-                    c1: [0.0; 4],
-                },
-                scale: Scale {
-                    d0: [s.ln(); 3],
-                    d1: [0.0; 3],
-                },
-                color,
-            }
-            .bundle()
-        })
-        .collect();
-    world.spawn_batch(bundles);
+    let gaussians = points.iter().zip(scales).map(|(p, s)| {
+        let params = GaussianParams {
+            position: Position {
+                mean: p.position.to_array(),
+            },
+            fourier: Fourier::default(),
+            temporal: Temporal {
+                center,
+                scale: temporal_scale,
+            },
+            opacity: Opacity {
+                logit: logit(opacity),
+            },
+            rotation: Rotation {
+                c0: [1.0, 0.0, 0.0, 0.0],
+                c1: [0.0; 4],
+            },
+            scale: Scale {
+                d0: [s.ln(); 3],
+                d1: [0.0; 3],
+            },
+            color: Color {
+                dc: p.color.map(rgb_to_sh_dc),
+            },
+            color_rest: ColorRest::default(),
+        };
+        (params.bundle(), params.color_rest_bundle())
+    });
+    spawn_gaussians(world, sh_degree, gaussians);
 }
 
 /// Logs the run's memory estimate and checks it against the available memory: an error

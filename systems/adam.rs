@@ -5,9 +5,9 @@ use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::{
-    Adam, Color, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal,
+    Adam, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal,
 };
-use crate::model::sh::coeff_count;
+use crate::model::sh::{SH_COEFFS, coeff_count};
 use crate::resources::{Settings, TrainState};
 use crate::scene::LearningRates;
 
@@ -87,16 +87,20 @@ impl ParamGroup for Scale {
 
 impl ParamGroup for Color {
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
-        let mut rates = Color {
-            sh: [[lr.sh_dc / lr.sh_rest_divisor; 3]; 16],
-        };
-        rates.sh[0] = [lr.sh_dc; 3];
-        rates
+        Self { dc: [lr.sh_dc; 3] }
+    }
+}
+
+impl ParamGroup for ColorRest {
+    fn learning_rates(lr: &LearningRates, _: f32) -> Self {
+        Self {
+            sh: [[lr.sh_dc / lr.sh_rest_divisor; 3]; SH_COEFFS - 1],
+        }
     }
 
     /// Coefficients above the active degree get no gradient (the basis is band by band).
     fn active_values(sh_degree: u32) -> usize {
-        3 * coeff_count(sh_degree)
+        3 * (coeff_count(sh_degree) - 1)
     }
 }
 
@@ -155,6 +159,7 @@ pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
         adam_step::<Rotation>,
         adam_step::<Scale>,
         adam_step::<Color>,
+        adam_step::<ColorRest>,
     )
         .into_configs()
 }

@@ -5,7 +5,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::components::{
-    Color, Deformed, Fourier, Grad, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
+    Color, ColorRest, Deformed, Fourier, Grad, Opacity, Position, Rotation, Scale, SplatSlot,
+    Temporal, sh_coefficients, split_sh,
 };
 use crate::gpu::GpuRasterizer;
 use crate::model::deform::{
@@ -91,6 +92,7 @@ pub type ParamGrads<'a> = (
     &'a mut Grad<Rotation>,
     &'a mut Grad<Scale>,
     &'a mut Grad<Color>,
+    Option<&'a mut Grad<ColorRest>>,
 );
 
 /// Chains each deformed Gaussian's gradient through the deformation model to its parameters.
@@ -109,7 +111,7 @@ pub fn backward_parameters(
     gaussians
         .par_iter_mut()
         .for_each(|(inputs, deformed, slot, grads)| {
-            let ((_, fourier, temporal, opacity, rotation, scale, color), warped) = inputs;
+            let ((_, fourier, temporal, opacity, rotation, scale, color, rest), warped) = inputs;
             let (
                 mut g_pos,
                 mut g_fourier,
@@ -118,12 +120,18 @@ pub fn backward_parameters(
                 mut g_rotation,
                 mut g_scale,
                 mut g_color,
+                g_rest,
             ) = grads;
             let d = buffers.deformed_grads[slot.0 as usize];
             let dtw = warped.dtw;
 
-            let (d_sh, d_dir) =
-                sh_to_rgb_backward(sh_degree, &color.sh, deformed.mean() - eye, d.color);
+            let degree = if rest.is_some() { sh_degree } else { 0 };
+            let (d_sh, d_dir) = sh_to_rgb_backward(
+                degree,
+                &sh_coefficients(color, rest),
+                deformed.mean() - eye,
+                d.color,
+            );
             let d_mean = d.mean + d_dir;
             let f = fourier_offset_backward(
                 &fourier.cos,
@@ -162,6 +170,10 @@ pub fn backward_parameters(
             g_opacity.0 = Opacity { logit: d_logit };
             g_rotation.0 = Rotation { c0: d_c0, c1: d_c1 };
             g_scale.0 = Scale { d0: d_d0, d1: d_d1 };
-            g_color.0 = Color { sh: d_sh };
+            let (d_dc, d_rest) = split_sh(&d_sh);
+            g_color.0 = d_dc;
+            if let Some(mut g_rest) = g_rest {
+                g_rest.0 = d_rest;
+            }
         });
 }

@@ -3,7 +3,7 @@
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 
-use crate::components::{Deformed, ParamRefs, WarpedTime};
+use crate::components::{Deformed, ParamRefs, WarpedTime, sh_coefficients};
 use crate::model::deform::{fourier_offset, rotation_at, scale_at, temporal_opacity};
 use crate::model::sh::sh_to_rgb;
 use crate::resources::{Settings, TrainState, ViewSample};
@@ -24,7 +24,7 @@ pub fn deform(
     let sh_degree = state.sh_degree;
     let eye = sample.camera.center();
     gaussians.par_iter_mut().for_each(
-        |(((pos, fourier, temporal, opacity, rotation, scale, color), warped), mut out)| {
+        |(((pos, fourier, temporal, opacity, rotation, scale, color, rest), warped), mut out)| {
             let dtw = warped.dtw;
             let mean = Vec3::from_array(pos.mean)
                 + fourier_offset(
@@ -40,7 +40,11 @@ pub fn deform(
                 rotation: rotation_at(rotation.c0, rotation.c1, dtw),
                 scale: scale_at(scale.d0, scale_velocity, dtw).to_array(),
                 opacity: temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw),
-                color: sh_to_rgb(sh_degree, &color.sh, mean - eye),
+                color: sh_to_rgb(
+                    if rest.is_some() { sh_degree } else { 0 },
+                    &sh_coefficients(color, rest),
+                    mean - eye,
+                ),
             };
         },
     );

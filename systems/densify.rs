@@ -8,8 +8,8 @@ use glam::{Quat, Vec3};
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::components::{
-    Adam, Deformed, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
-    fresh_optimizer_state,
+    Adam, ColorRest, Deformed, Grad, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot,
+    Temporal, fresh_optimizer_state,
 };
 use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
@@ -129,6 +129,7 @@ pub fn densify_and_prune(
         &mut Scale,
         &Opacity,
         &mut GradAccum,
+        Has<ColorRest>,
     )>,
 ) {
     let d = &settings.densify;
@@ -141,7 +142,9 @@ pub fn densify_and_prune(
     let prune_big = d.prune_big && state.iteration > d.opacity_reset_interval;
     // Gaussians that qualified for densification but were refused by the population cap.
     let mut capped = 0usize;
-    for (entity, mut position, rotation, mut scale, opacity, mut accum) in gaussians.iter_mut() {
+    for (entity, mut position, rotation, mut scale, opacity, mut accum, has_rest) in
+        gaussians.iter_mut()
+    {
         let stats = std::mem::take(&mut *accum);
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
         let transparent = sigmoid(opacity.logit) < d.prune_opacity;
@@ -168,10 +171,7 @@ pub fn densify_and_prune(
         population += 1;
         if max_scale <= d.percent_dense * extent {
             // Clone: an identical copy with fresh optimiser state.
-            commands
-                .entity(entity)
-                .clone_and_spawn()
-                .insert(fresh_optimizer_state());
+            reset_optimizer(commands.entity(entity).clone_and_spawn(), has_rest);
             report.cloned += 1;
         } else {
             // Split: the Gaussian and its copy move to two samples of itself, scales / 1.6.
@@ -193,7 +193,7 @@ pub fn densify_and_prune(
             for s in &mut scale.d0 {
                 *s -= SPLIT_SCALE_DIVISOR.ln();
             }
-            commands.entity(entity).insert(fresh_optimizer_state());
+            reset_optimizer(commands.entity(entity), has_rest);
             commands
                 .entity(entity)
                 .clone_and_spawn()
@@ -210,6 +210,15 @@ pub fn densify_and_prune(
         );
     }
     state.last_densify = report;
+}
+
+/// Zeroes the gradients and Adam moments of every parameter group of a Gaussian (`has_rest`:
+/// it carries the higher SH bands).
+fn reset_optimizer(mut gaussian: EntityCommands, has_rest: bool) {
+    gaussian.insert(fresh_optimizer_state());
+    if has_rest {
+        gaussian.insert((Grad::<ColorRest>::default(), Adam::<ColorRest>::default()));
+    }
 }
 
 /// Caps every spatial opacity at 0.01 and clears its Adam moments.

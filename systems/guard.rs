@@ -27,6 +27,7 @@ pub fn check_gradients(
     rotation: Query<&Grad<Rotation>>,
     scale: Query<&Grad<Scale>>,
     color: Query<&Grad<Color>>,
+    color_rest: Query<&Grad<ColorRest>>,
 ) {
     if fault.0.is_some() {
         return;
@@ -42,6 +43,7 @@ pub fn check_gradients(
             (Rotation::NAME, first_nonfinite(&rotation)),
             (Scale::NAME, first_nonfinite(&scale)),
             (Color::NAME, first_nonfinite(&color)),
+            (ColorRest::NAME, first_nonfinite(&color_rest)),
         ]
         .into_iter()
         .find_map(|(group, index)| index.map(|i| (group, Some(i))))

@@ -10,8 +10,9 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
 
 use crate::components::{
-    Adam, Color, Deformed, Fourier, GradAccum, Opacity, Param, ParamRefs, Position, Rotation,
-    Scale, SplatSlot, Temporal, WarpedTime,
+    Adam, Color, ColorRest, Deformed, Fourier, Grad, GradAccum, Opacity, Param, ParamRefs,
+    Position, Rotation, Scale, ShCoefficients, SplatSlot, Temporal, WarpedTime, sh_coefficients,
+    split_sh,
 };
 use crate::gpu::{DeformSettings, GpuTraining, ParamGradients, ResidentState, StatsConfig};
 use crate::resources::{
@@ -29,6 +30,7 @@ pub type AdamRefs<'a> = (
     &'a Adam<Rotation>,
     &'a Adam<Scale>,
     &'a Adam<Color>,
+    Option<&'a Adam<ColorRest>>,
 );
 
 /// The parameters and Adam moments of one Gaussian, writable.
@@ -41,6 +43,7 @@ pub type ResidentMuts<'a> = (
         &'a mut Rotation,
         &'a mut Scale,
         &'a mut Color,
+        Option<&'a mut ColorRest>,
     ),
     (
         &'a mut Adam<Position>,
@@ -50,6 +53,7 @@ pub type ResidentMuts<'a> = (
         &'a mut Adam<Rotation>,
         &'a mut Adam<Scale>,
         &'a mut Adam<Color>,
+        Option<&'a mut Adam<ColorRest>>,
     ),
 );
 
@@ -93,8 +97,12 @@ pub fn resident_forward(
         scratch.state.clear();
         for (slot, (params, adam, accum, _, mut splat_slot)) in gaussians.iter_mut().enumerate() {
             splat_slot.0 = slot as u32;
-            let (p0, p1, p2, p3, p4, p5, p6) = params;
-            let (a0, a1, a2, a3, a4, a5, a6) = adam;
+            let (p0, p1, p2, p3, p4, p5, p6, p7) = params;
+            let (a0, a1, a2, a3, a4, a5, a6, a7) = adam;
+            let (no_rest, no_moments) = (ColorRest::default(), Adam::<ColorRest>::default());
+            let (p7, a7) = (p7.unwrap_or(&no_rest), a7.unwrap_or(&no_moments));
+            // The GPU holds every SH band in one section: the higher bands (zero for a
+            // Gaussian without them) follow the DC term.
             let values = [
                 [p0.values(), a0.m.values(), a0.v.values()],
                 [p1.values(), a1.m.values(), a1.v.values()],
@@ -103,10 +111,11 @@ pub fn resident_forward(
                 [p4.values(), a4.m.values(), a4.v.values()],
                 [p5.values(), a5.m.values(), a5.v.values()],
                 [p6.values(), a6.m.values(), a6.v.values()],
+                [p7.values(), a7.m.values(), a7.v.values()],
             ];
             for (k, parts) in values.iter().enumerate() {
                 for (kind, part) in parts.iter().enumerate() {
-                    scratch.sections[kind][k].extend_from_slice(part);
+                    scratch.sections[kind][k.min(6)].extend_from_slice(part);
                 }
             }
             scratch.state.accum.push(*accum);
@@ -184,7 +193,10 @@ pub fn resident_adam(
     let r3 = Opacity::learning_rates(lr, plr);
     let r4 = Rotation::learning_rates(lr, plr);
     let r5 = Scale::learning_rates(lr, plr);
-    let r6 = Color::learning_rates(lr, plr);
+    let r6 = sh_coefficients(
+        &Color::learning_rates(lr, plr),
+        Some(&ColorRest::learning_rates(lr, plr)),
+    );
     gpu.adam(
         [
             r0.values(),
@@ -193,7 +205,7 @@ pub fn resident_adam(
             r3.values(),
             r4.values(),
             r5.values(),
-            r6.values(),
+            r6.as_flattened(),
         ],
         state.iteration,
     );
@@ -254,8 +266,8 @@ pub fn resident_sync(
         adam.v = ResidentState::get(&state.v, n, k, slot);
     }
     for (
-        ((p0, p1, p2, p3, p4, p5, p6), (a0, a1, a2, a3, a4, a5, a6)),
-        (g0, g1, g2, g3, g4, g5, g6),
+        ((p0, p1, p2, p3, p4, p5, p6, p7), (a0, a1, a2, a3, a4, a5, a6, a7)),
+        (g0, g1, g2, g3, g4, g5, g6, g7),
         mut deformed_out,
         mut accum,
         slot,
@@ -268,7 +280,8 @@ pub fn resident_sync(
         *g3.into_inner() = grads.opacity[s];
         *g4.into_inner() = grads.rotation[s];
         *g5.into_inner() = grads.scale[s];
-        *g6.into_inner() = grads.color[s];
+        let (d_dc, d_rest) = split_sh(&grads.color[s]);
+        *g6.into_inner() = Grad(d_dc);
         *deformed_out = deformed[s];
         put(state, n, 0, s, p0.into_inner(), a0.into_inner());
         put(state, n, 1, s, p1.into_inner(), a1.into_inner());
@@ -276,7 +289,19 @@ pub fn resident_sync(
         put(state, n, 3, s, p3.into_inner(), a3.into_inner());
         put(state, n, 4, s, p4.into_inner(), a4.into_inner());
         put(state, n, 5, s, p5.into_inner(), a5.into_inner());
-        put(state, n, 6, s, p6.into_inner(), a6.into_inner());
+        let sh = |values| split_sh(&ResidentState::get::<ShCoefficients>(values, n, 6, s));
+        let ((dc, rest), (m_dc, m_rest), (v_dc, v_rest)) =
+            (sh(&state.params), sh(&state.m), sh(&state.v));
+        *p6.into_inner() = dc;
+        *a6.into_inner() = Adam { m: m_dc, v: v_dc };
+        if let (Some(mut p7), Some(mut a7), Some(mut g7)) = (p7, a7, g7) {
+            *p7 = rest;
+            *a7 = Adam {
+                m: m_rest,
+                v: v_rest,
+            };
+            g7.0 = d_rest;
+        }
         *accum = state.accum[s];
     }
     gpu.mark_dirty();

@@ -68,5 +68,5 @@ fn stages_run_in_the_documented_order() {
         .iter()
         .filter(|r| r.system.starts_with("adam_step<"))
         .count();
-    assert_eq!(adam, 7, "one Adam system per parameter group");
+    assert_eq!(adam, 8, "one Adam system per parameter group");
 }

@@ -11,7 +11,7 @@ use glam::Vec2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tadgs::components::{
-    Adam, Color, Deformed, Fourier, Grad, GradAccum, Opacity, Param, Position, Rotation, Scale,
+    Adam, Color, ColorRest, Deformed, Fourier, Grad, GradAccum, Opacity, Param, Position, Rotation, Scale,
     SplatSlot, Temporal,
 };
 use tadgs::data::synthetic::demo_scene;
@@ -139,6 +139,7 @@ fn gpu_adam_equals_cpu_adam_step() {
         ("rotation", adam_parity::<Rotation>(&ctx, &adam, n, 5)),
         ("scale", adam_parity::<Scale>(&ctx, &adam, n, 5)),
         ("color", adam_parity::<Color>(&ctx, &adam, n, 5)),
+        ("color_rest", adam_parity::<ColorRest>(&ctx, &adam, n, 5)),
     ];
     // Dispatches as 2D grids (as beyond 65 535 workgroups): 36 workgroups in rows of 2.
     tadgs::gpu::set_max_dispatch_width(2);

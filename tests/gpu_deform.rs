@@ -153,10 +153,12 @@ fn random_gaussian(
     case: &Case,
     camera: &Camera,
 ) -> (GaussianParams, WarpedTime) {
-    let mut color = Color::default();
-    color.sh[0] = uniform(rng, -1.5, 2.0);
-    for k in 1..16 {
-        color.sh[k] = uniform(rng, -0.5, 0.5);
+    let color = Color {
+        dc: uniform(rng, -1.5, 2.0),
+    };
+    let mut color_rest = ColorRest::default();
+    for k in 0..15 {
+        color_rest.sh[k] = uniform(rng, -0.5, 0.5);
     }
     let temporal_scale = match case.opacity {
         TemporalOpacity::Rbf => [rng.random_range(-3.0..4.0), rng.random_range(-1.0..1.0)],
@@ -187,6 +189,7 @@ fn random_gaussian(
             d1: uniform(rng, -1.0, 1.0),
         },
         color,
+        color_rest,
     };
     let mut dtw = rng.random_range(-1.0..1.0);
     match rng.random_range(0..20) {
@@ -272,7 +275,9 @@ fn run_cpu(
         ..Default::default()
     });
     for (params, warped) in gaussians {
-        let e = world.spawn(params.bundle()).id();
+        let e = world
+            .spawn((params.bundle(), params.color_rest_bundle()))
+            .id();
         *world.get_mut::<WarpedTime>(e).unwrap() = *warped;
     }
 
@@ -356,7 +361,7 @@ fn run_cpu(
             .zip(&nudged)
             .zip(reference.iter().zip(&out.params))
         {
-            let color = sh_to_rgb(case.sh_degree, &p.color.sh, Vec3::from(d.mean) - eye);
+            let color = sh_to_rgb(case.sh_degree, &p.sh(), Vec3::from(d.mean) - eye);
             for (a, b) in color.iter().zip(&r.color) {
                 *noise = noise.max((a - b).abs());
             }
@@ -413,6 +418,7 @@ fn collect_grads(
                 &Grad<Rotation>,
                 &Grad<Scale>,
                 &Grad<Color>,
+                &Grad<ColorRest>,
             ),
         )>()
         .iter(world)
@@ -421,7 +427,15 @@ fn collect_grads(
                 slot.0,
                 GaussianParams::from_refs(refs),
                 *w,
-                (*g.0, *g.1, *g.2, *g.3, *g.4, *g.5, *g.6),
+                (
+                    *g.0,
+                    *g.1,
+                    *g.2,
+                    *g.3,
+                    *g.4,
+                    *g.5,
+                    sh_coefficients(&g.6.0, Some(&g.7.0)),
+                ),
             )
         })
         .collect();
@@ -461,7 +475,7 @@ fn grad_groups(g: &ParamGradients, i: usize) -> [&[f32]; 7] {
         g.opacity[i].0.values(),
         g.rotation[i].0.values(),
         g.scale[i].0.values(),
-        g.color[i].0.values(),
+        g.color[i].as_flattened(),
     ]
 }
 
@@ -554,7 +568,7 @@ fn gpu_deform_project_and_gradients_equal_cpu_systems() {
             let opacity: Vec<Opacity> = all.iter().map(|p| p.opacity).collect();
             let rotation: Vec<Rotation> = all.iter().map(|p| p.rotation).collect();
             let scale: Vec<Scale> = all.iter().map(|p| p.scale).collect();
-            let color: Vec<Color> = all.iter().map(|p| p.color).collect();
+            let color: Vec<ShCoefficients> = all.iter().map(|p| p.sh()).collect();
             let slices = ParamSlices {
                 position: &position,
                 fourier: &fourier,

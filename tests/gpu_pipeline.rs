@@ -95,6 +95,7 @@ fn groups(world: &mut World) -> Vec<(&'static str, [Vec<f32>; 3])> {
         ("rotation", group::<Rotation>(world)),
         ("scale", group::<Scale>(world)),
         ("color", group::<Color>(world)),
+        ("color_rest", group::<ColorRest>(world)),
     ]
 }
 
@@ -146,6 +147,7 @@ fn compare_synced_components(cpu: &mut World, gpu: &mut World) -> f32 {
         pair::<Rotation>(cpu, gpu),
         pair::<Scale>(cpu, gpu),
         pair::<Color>(cpu, gpu),
+        pair::<ColorRest>(cpu, gpu),
     ];
     let mut worst = 0f32;
     for (name, c, g) in &grads {
@@ -369,8 +371,17 @@ fn non_finite_gradients_are_caught() {
     let world = &mut cpu.world;
     let mut state = ResidentState::default();
     let mut sections: [[Vec<f32>; 3]; 7] = Default::default();
-    for (k, g) in groups(world).into_iter().enumerate() {
-        sections[k] = g.1;
+    let groups = groups(world);
+    for (k, g) in groups.iter().take(6).enumerate() {
+        sections[k] = g.1.clone();
+    }
+    // The GPU's colour section holds every SH band of a Gaussian together: DC, then the rest.
+    let (dc, rest) = (&groups[6].1, &groups[7].1);
+    for kind in 0..3 {
+        for (dc, rest) in dc[kind].chunks(3).zip(rest[kind].chunks(45)) {
+            sections[6][kind].extend_from_slice(dc);
+            sections[6][kind].extend_from_slice(rest);
+        }
     }
     for (kind, out) in [&mut state.params, &mut state.m, &mut state.v]
         .into_iter()

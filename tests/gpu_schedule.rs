@@ -80,6 +80,7 @@ fn gradients(world: &mut World) -> Vec<(&'static str, Vec<f32>)> {
         field::<Rotation>(world, "rotation"),
         field::<Scale>(world, "scale"),
         field::<Color>(world, "color"),
+        field::<ColorRest>(world, "color_rest"),
     ]
 }
 

@@ -62,10 +62,12 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
     // above the 1/255 cut-off, so the loss is smooth in every parameter.
     for i in 0..4 {
         let mut small = |s: f32| rng.random_range(-s..s);
-        let mut color = Color::default();
-        color.sh[0] = [0.4 + small(0.5), 0.4 + small(0.5), 0.4 + small(0.5)];
-        for k in 1..16 {
-            color.sh[k] = [small(0.1), small(0.1), small(0.1)];
+        let color = Color {
+            dc: [0.4 + small(0.5), 0.4 + small(0.5), 0.4 + small(0.5)],
+        };
+        let mut color_rest = ColorRest::default();
+        for k in 0..15 {
+            color_rest.sh[k] = [small(0.1), small(0.1), small(0.1)];
         }
         let params = GaussianParams {
             position: Position {
@@ -92,8 +94,9 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
                 d1: [small(0.1), small(0.1), small(0.1)],
             },
             color,
+            color_rest,
         };
-        world.spawn(params.bundle());
+        world.spawn((params.bundle(), params.color_rest_bundle()));
     }
     world
 }
@@ -197,6 +200,7 @@ fn check_all(phase: PhaseModel, opacity: tadgs::scene::OpacityModel) {
     checked += check_group::<Rotation>(&mut world, &mut render, H_ROTATION, &[]);
     checked += check_group::<Scale>(&mut world, &mut render, H_SCALE, &[]);
     checked += check_group::<Color>(&mut world, &mut render, H_COLOR, &[]);
+    checked += check_group::<ColorRest>(&mut world, &mut render, H_COLOR, &[]);
     // Every value but the temporal centre, which is fixed (never optimised, no gradient).
     assert_eq!(checked, 4 * (3 + 28 + 2 + 1 + 8 + 6 + 48));
 }

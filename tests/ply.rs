@@ -229,7 +229,7 @@ fn static_import_at_sh_degree_3() {
     assert_eq!(s.rotation, [158.0, 159.0, 160.0, 161.0]);
     let model = cloud.into_static_model();
     assert_eq!(model.sh_degree, 3);
-    assert_eq!(model.gaussians[1].color.sh, s.sh);
+    assert_eq!(model.gaussians[1].sh(), s.sh);
 }
 
 /// Property: files that are not splat files are refused with the file and the problem named.
@@ -297,8 +297,8 @@ fn frame_export_renders_like_the_model_at_that_time() {
         g.rotation.c1 = [0.0, 0.5, 0.3, 0.0];
         g.scale.d0 = [-2.5, -2.8, -3.0];
         g.scale.d1 = [0.4, 0.0, -0.3];
-        g.color.sh[0] = [0.5, -0.2, 0.3 - 0.02 * f];
-        g.color.sh[2] = [0.1, 0.05, -0.1];
+        g.color.dc = [0.5, -0.2, 0.3 - 0.02 * f];
+        g.color_rest.sh[1] = [0.1, 0.05, -0.1];
         gaussians.push(g);
     }
     let model = Model {

@@ -120,6 +120,7 @@ fn all_adam_zero(world: &mut World, e: Entity) -> bool {
         && adam_is_zero::<Rotation>(world, e)
         && adam_is_zero::<Scale>(world, e)
         && adam_is_zero::<Color>(world, e)
+        && adam_is_zero::<ColorRest>(world, e)
 }
 
 /// Clone, split and prune keep the population consistent: the entity count adds up, every
@@ -181,6 +182,7 @@ fn densification_keeps_components_and_adam_state_consistent() {
                 &Rotation,
                 &Scale,
                 &Color,
+                &ColorRest,
             ),
             (
                 &Grad<Position>,
@@ -190,6 +192,8 @@ fn densification_keeps_components_and_adam_state_consistent() {
                 &Grad<Rotation>,
                 &Grad<Scale>,
                 &Grad<Color>,
+                &Grad<ColorRest>,
+                &Adam<ColorRest>,
             ),
             (&GradAccum, &WarpedTime, &Deformed, &SplatSlot),
         )>()

@@ -29,8 +29,8 @@ use glam::Vec2;
 
 use super::{GpuContext, GpuError, GrowBuffer};
 use crate::components::{
-    Color, Deformed, Fourier, GaussianParams, Grad, Opacity, Param, Position, Rotation, Scale,
-    Temporal, WarpedTime,
+    Deformed, Fourier, GaussianParams, Grad, Opacity, Param, Position, Rotation, Scale,
+    ShCoefficients, Temporal, WarpedTime,
 };
 use crate::data::Camera;
 use crate::model::deform::{ASYMMETRIC_MAX_WIDTH, TemporalOpacity};
@@ -51,7 +51,7 @@ pub(super) const WIDTHS: [usize; 7] = [
     size_of::<Opacity>() / 4,
     size_of::<Rotation>() / 4,
     size_of::<Scale>() / 4,
-    size_of::<Color>() / 4,
+    size_of::<ShCoefficients>() / 4,
 ];
 /// f32 values per Gaussian over all components (`PREFIX_COLOR + WIDTH_COLOR` in the shaders).
 pub(super) const PARAM_FLOATS: usize = 97;
@@ -100,8 +100,8 @@ pub struct ParamSlices<'a> {
     pub rotation: &'a [Rotation],
     /// Log-scale polynomials.
     pub scale: &'a [Scale],
-    /// SH colours.
-    pub color: &'a [Color],
+    /// SH colours, every band (zero above the model's degree).
+    pub color: &'a [ShCoefficients],
 }
 
 impl ParamSlices<'_> {
@@ -159,7 +159,7 @@ pub struct ParamGradients {
     /// dL/d log-scale polynomial (d1 is 0 without scale motion).
     pub scale: Vec<Grad<Scale>>,
     /// dL/d SH coefficients (0 above the degree in use).
-    pub color: Vec<Grad<Color>>,
+    pub color: Vec<ShCoefficients>,
 }
 
 /// The model options the kernels need, from the [`Settings`] and [`TrainState`] resources.
@@ -456,7 +456,9 @@ impl GpuDeformer {
         section!(opacity);
         section!(rotation);
         section!(scale);
-        section!(color);
+        for p in params {
+            host.extend(p.sh().as_flattened());
+        }
         debug_assert_eq!(host.len(), params.len() * PARAM_FLOATS);
         if !host.is_empty() {
             self.gpu
@@ -705,7 +707,9 @@ impl GpuDeformer {
         fill(&mut out.opacity, sections[3]);
         fill(&mut out.rotation, sections[4]);
         fill(&mut out.scale, sections[5]);
-        fill(&mut out.color, sections[6]);
+        out.color.clear();
+        out.color
+            .extend_from_slice(bytemuck::cast_slice(sections[6]));
         Ok(())
     }
 

@@ -104,12 +104,12 @@ impl ResidentState {
         start..start + WIDTHS[k] * count
     }
 
-    /// Component `P` (section `k`) of slot `slot` of `values` (a `params`, `m` or `v` array
-    /// of `count` Gaussians).
-    pub fn get<P: Param>(values: &[f32], count: usize, k: usize, slot: usize) -> P {
+    /// The values of section `k` (a component, or every SH band for section 6) of slot `slot`
+    /// of `values` (a `params`, `m` or `v` array of `count` Gaussians).
+    pub fn get<T: bytemuck::Pod>(values: &[f32], count: usize, k: usize, slot: usize) -> T {
         let range = Self::section_range(count, k);
         let width = WIDTHS[k];
-        debug_assert_eq!(width * 4, size_of::<P>());
+        debug_assert_eq!(width * 4, size_of::<T>());
         let at = range.start + slot * width;
         bytemuck::pod_read_unaligned(bytemuck::cast_slice(&values[at..at + width]))
     }

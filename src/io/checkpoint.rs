@@ -20,13 +20,16 @@ use rand_chacha::ChaCha8Rng;
 use safetensors::tensor::Dtype;
 use serde::{Deserialize, Serialize};
 
+use bytemuck::Pod;
+
 use super::model::{
-    ModelError, NamedTensor, checked_metadata, column, param_tensors, read_column,
+    ModelError, NamedTensor, checked_metadata, column, name, param_tensors, read_column,
     read_param_tensors, write_tensors,
 };
 use crate::components::{
-    Adam, AdamMoments, Color, Fourier, GaussianParams, GradAccum, Opacity, Param, ParamRefs,
-    Position, Rotation, Scale, Temporal,
+    Adam, AdamMoments, Color, ColorRest, Fourier, GaussianParams, GradAccum, Opacity, Param,
+    ParamRefs, Position, Rotation, Scale, ShCoefficients, Temporal, sh_coefficients,
+    spawn_gaussians, split_sh,
 };
 use crate::report::TrainingLog;
 use crate::resources::{DensifyReport, Rng, TrainState, ViewOrder};
@@ -83,8 +86,10 @@ pub enum CheckpointError {
 pub struct GaussianState {
     /// Every parameter component.
     pub params: GaussianParams,
-    /// Adam moments of every parameter group.
+    /// Adam moments of every parameter group but the higher SH bands.
     pub adam: AdamMoments,
+    /// Adam moments of the higher SH bands (zero when the Gaussian has none).
+    pub adam_rest: Adam<ColorRest>,
     /// Densification statistics since the last densification step.
     pub accum: GradAccum,
 }
@@ -166,6 +171,7 @@ impl Checkpoint {
                 adam: (
                     *adam.0, *adam.1, *adam.2, *adam.3, *adam.4, *adam.5, *adam.6,
                 ),
+                adam_rest: adam.7.copied().unwrap_or_default(),
                 accum: *accum,
             })
             .collect();
@@ -198,13 +204,19 @@ impl Checkpoint {
     /// saved order with their Adam moments and statistics, and restores the counters, the
     /// view order and the RNG.
     pub fn restore_into(&self, world: &mut World) {
-        world.spawn_batch(self.gaussians.iter().map(|g| {
-            let mut bundle = g.params.bundle();
-            bundle.1.1 = g.adam;
-            bundle.2.0 = g.accum;
-            bundle
-        }));
         let s = &self.state;
+        spawn_gaussians(
+            world,
+            s.scene.model.sh_degree,
+            self.gaussians.iter().map(|g| {
+                let mut bundle = g.params.bundle();
+                bundle.1.1 = g.adam;
+                bundle.2.0 = g.accum;
+                let mut rest = g.params.color_rest_bundle();
+                rest.2 = g.adam_rest;
+                (bundle, rest)
+            }),
+        );
         *world.resource_mut::<TrainState>() = TrainState {
             iteration: s.iteration,
             sh_degree: s.sh_degree,
@@ -259,13 +271,19 @@ impl Checkpoint {
     fn write_files(&self, dir: &Path) -> Result<(), CheckpointError> {
         let params: Vec<GaussianParams> = self.gaussians.iter().map(|g| g.params).collect();
         let mut tensors = param_tensors(&params, "");
-        tensors.extend(adam_tensors::<Position>(&self.gaussians, |a| &a.0));
-        tensors.extend(adam_tensors::<Fourier>(&self.gaussians, |a| &a.1));
-        tensors.extend(adam_tensors::<Temporal>(&self.gaussians, |a| &a.2));
-        tensors.extend(adam_tensors::<Opacity>(&self.gaussians, |a| &a.3));
-        tensors.extend(adam_tensors::<Rotation>(&self.gaussians, |a| &a.4));
-        tensors.extend(adam_tensors::<Scale>(&self.gaussians, |a| &a.5));
-        tensors.extend(adam_tensors::<Color>(&self.gaussians, |a| &a.6));
+        let g = &self.gaussians;
+        tensors.extend(adam_tensors::<Position, _>(g, |g| adam_of(&g.adam.0)));
+        tensors.extend(adam_tensors::<Fourier, _>(g, |g| adam_of(&g.adam.1)));
+        tensors.extend(adam_tensors::<Temporal, _>(g, |g| adam_of(&g.adam.2)));
+        tensors.extend(adam_tensors::<Opacity, _>(g, |g| adam_of(&g.adam.3)));
+        tensors.extend(adam_tensors::<Rotation, _>(g, |g| adam_of(&g.adam.4)));
+        tensors.extend(adam_tensors::<Scale, _>(g, |g| adam_of(&g.adam.5)));
+        tensors.extend(adam_tensors::<Color, _>(g, |g| {
+            [
+                sh_coefficients(&g.adam.6.m, Some(&g.adam_rest.m)),
+                sh_coefficients(&g.adam.6.v, Some(&g.adam_rest.v)),
+            ]
+        }));
         tensors.extend(accum_tensors(&self.gaussians));
         let metadata = HashMap::from([
             ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
@@ -390,28 +408,51 @@ type AdamRefs<'a> = (
     &'a Adam<Rotation>,
     &'a Adam<Scale>,
     &'a Adam<Color>,
+    Option<&'a Adam<ColorRest>>,
 );
 
-/// The first and second moments of group `P` as tensors `adam.m.<group>`, `adam.v.<group>`.
-fn adam_tensors<P: Param>(
+/// The first and second moments of group `P` as tensors `adam.m.<group>`, `adam.v.<group>`;
+/// `moments` gives a Gaussian's `[m, v]` as values of type `T` (the full SH set for colour).
+fn adam_tensors<P: Param, T: Pod>(
     gaussians: &[GaussianState],
-    field: impl Fn(&AdamMoments) -> &Adam<P>,
+    moments: impl Fn(&GaussianState) -> [T; 2],
 ) -> [NamedTensor; 2] {
     [
-        column("adam.m.", gaussians.iter().map(|g| &field(&g.adam).m)),
-        column("adam.v.", gaussians.iter().map(|g| &field(&g.adam).v)),
+        column(
+            name::<P>("adam.m."),
+            gaussians.iter().map(|g| moments(g)[0]),
+        ),
+        column(
+            name::<P>("adam.v."),
+            gaussians.iter().map(|g| moments(g)[1]),
+        ),
     ]
 }
 
-/// Reads the moments written by [`adam_tensors`] for `rows` Gaussians.
+/// The moments of a group as components.
+fn adam_of<P: Param>(adam: &Adam<P>) -> [P; 2] {
+    [adam.m, adam.v]
+}
+
+/// Reads the moments written by [`adam_tensors`] for `rows` Gaussians, as values of type `T`.
+fn read_moments<P: Param, T: Pod>(
+    path: &Path,
+    tensors: &safetensors::SafeTensors<'_>,
+    rows: usize,
+) -> Result<Vec<[T; 2]>, ModelError> {
+    let m = read_column::<T>(path, tensors, name::<P>("adam.m."), Some(rows))?;
+    let v = read_column::<T>(path, tensors, name::<P>("adam.v."), Some(rows))?;
+    Ok(m.into_iter().zip(v).map(|(m, v)| [m, v]).collect())
+}
+
+/// Reads the moments of group `P` for `rows` Gaussians.
 fn read_adam<P: Param>(
     path: &Path,
     tensors: &safetensors::SafeTensors<'_>,
     rows: usize,
 ) -> Result<Vec<Adam<P>>, ModelError> {
-    let m = read_column::<P>(path, tensors, "adam.m.", Some(rows))?;
-    let v = read_column::<P>(path, tensors, "adam.v.", Some(rows))?;
-    Ok(m.into_iter().zip(v).map(|(m, v)| Adam { m, v }).collect())
+    let moments = read_moments::<P, P>(path, tensors, rows)?;
+    Ok(moments.into_iter().map(|[m, v]| Adam { m, v }).collect())
 }
 
 /// The densification statistics: `grad_accum` (f32: Σw·g, Σw, Σψ̄, max radius) and
@@ -480,31 +521,40 @@ fn read_gaussian_states(
     let opacity = read_adam::<Opacity>(path, &tensors, n)?;
     let rotation = read_adam::<Rotation>(path, &tensors, n)?;
     let scale = read_adam::<Scale>(path, &tensors, n)?;
-    let color = read_adam::<Color>(path, &tensors, n)?;
+    let color = read_moments::<Color, ShCoefficients>(path, &tensors, n)?;
     let floats = raw_tensor(&tensors, "grad_accum", Dtype::F32, [n, 4]).map_err(&invalid)?;
     let counts = raw_tensor(&tensors, "grad_accum_count", Dtype::U32, [n, 1]).map_err(&invalid)?;
     let word = |bytes: &[u8], i: usize| -> [u8; 4] {
         bytes[4 * i..4 * i + 4].try_into().expect("4 bytes")
     };
     Ok((0..n)
-        .map(|i| GaussianState {
-            params: params[i],
-            adam: (
-                position[i],
-                fourier[i],
-                temporal[i],
-                opacity[i],
-                rotation[i],
-                scale[i],
-                color[i],
-            ),
-            accum: GradAccum {
-                weighted_grad: f32::from_le_bytes(word(floats, 4 * i)),
-                weight: f32::from_le_bytes(word(floats, 4 * i + 1)),
-                lifespan_sum: f32::from_le_bytes(word(floats, 4 * i + 2)),
-                max_radius: f32::from_le_bytes(word(floats, 4 * i + 3)),
-                count: u32::from_le_bytes(word(counts, i)),
-            },
+        .map(|i| {
+            let [m, v] = &color[i];
+            let (m_dc, m_rest) = split_sh(m);
+            let (v_dc, v_rest) = split_sh(v);
+            GaussianState {
+                params: params[i],
+                adam: (
+                    position[i],
+                    fourier[i],
+                    temporal[i],
+                    opacity[i],
+                    rotation[i],
+                    scale[i],
+                    Adam { m: m_dc, v: v_dc },
+                ),
+                adam_rest: Adam {
+                    m: m_rest,
+                    v: v_rest,
+                },
+                accum: GradAccum {
+                    weighted_grad: f32::from_le_bytes(word(floats, 4 * i)),
+                    weight: f32::from_le_bytes(word(floats, 4 * i + 1)),
+                    lifespan_sum: f32::from_le_bytes(word(floats, 4 * i + 2)),
+                    max_radius: f32::from_le_bytes(word(floats, 4 * i + 3)),
+                    count: u32::from_le_bytes(word(counts, i)),
+                },
+            }
         })
         .collect())
 }

@@ -13,8 +13,11 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
+use bytemuck::Pod;
+
 use crate::components::{
-    Color, Fourier, GaussianParams, Opacity, Param, ParamRefs, Position, Rotation, Scale, Temporal,
+    Color, Fourier, GaussianParams, Opacity, Param, ParamRefs, Position, Rotation, Scale,
+    ShCoefficients, Temporal, spawn_gaussians, split_sh,
 };
 use crate::scene::{DataSource, ModelConfig, SceneConfig};
 
@@ -110,9 +113,16 @@ impl Model {
         scene
     }
 
-    /// Spawns every Gaussian into `world` with fresh optimiser state.
+    /// Spawns every Gaussian into `world` with fresh optimiser state (with the higher SH
+    /// bands when the model's degree is above 0).
     pub fn spawn_into(&self, world: &mut World) {
-        world.spawn_batch(self.gaussians.iter().map(|g| g.bundle()));
+        spawn_gaussians(
+            world,
+            self.sh_degree,
+            self.gaussians
+                .iter()
+                .map(|g| (g.bundle(), g.color_rest_bundle())),
+        );
     }
 
     /// Writes the model to `path` (temporary file, then rename: complete or absent).
@@ -240,13 +250,22 @@ pub(crate) fn write_tensors(
 /// Every parameter component of `gaussians`, one tensor each, named `prefix` + component name.
 pub(crate) fn param_tensors(gaussians: &[GaussianParams], prefix: &str) -> Vec<NamedTensor> {
     vec![
-        column(prefix, gaussians.iter().map(|g| &g.position)),
-        column(prefix, gaussians.iter().map(|g| &g.fourier)),
-        column(prefix, gaussians.iter().map(|g| &g.temporal)),
-        column(prefix, gaussians.iter().map(|g| &g.opacity)),
-        column(prefix, gaussians.iter().map(|g| &g.rotation)),
-        column(prefix, gaussians.iter().map(|g| &g.scale)),
-        column(prefix, gaussians.iter().map(|g| &g.color)),
+        column(
+            name::<Position>(prefix),
+            gaussians.iter().map(|g| g.position),
+        ),
+        column(name::<Fourier>(prefix), gaussians.iter().map(|g| g.fourier)),
+        column(
+            name::<Temporal>(prefix),
+            gaussians.iter().map(|g| g.temporal),
+        ),
+        column(name::<Opacity>(prefix), gaussians.iter().map(|g| g.opacity)),
+        column(
+            name::<Rotation>(prefix),
+            gaussians.iter().map(|g| g.rotation),
+        ),
+        column(name::<Scale>(prefix), gaussians.iter().map(|g| g.scale)),
+        column(name::<Color>(prefix), gaussians.iter().map(|g| g.sh())),
     ]
 }
 
@@ -258,53 +277,63 @@ pub(crate) fn read_param_tensors(
     prefix: &str,
     rows: Option<usize>,
 ) -> Result<Vec<GaussianParams>, ModelError> {
-    let positions = read_column::<Position>(path, tensors, prefix, rows)?;
+    let positions: Vec<Position> = read_column(path, tensors, name::<Position>(prefix), rows)?;
     let n = Some(positions.len());
-    let fourier = read_column::<Fourier>(path, tensors, prefix, n)?;
-    let temporal = read_column::<Temporal>(path, tensors, prefix, n)?;
-    let opacity = read_column::<Opacity>(path, tensors, prefix, n)?;
-    let rotation = read_column::<Rotation>(path, tensors, prefix, n)?;
-    let scale = read_column::<Scale>(path, tensors, prefix, n)?;
-    let color = read_column::<Color>(path, tensors, prefix, n)?;
+    let fourier: Vec<Fourier> = read_column(path, tensors, name::<Fourier>(prefix), n)?;
+    let temporal: Vec<Temporal> = read_column(path, tensors, name::<Temporal>(prefix), n)?;
+    let opacity: Vec<Opacity> = read_column(path, tensors, name::<Opacity>(prefix), n)?;
+    let rotation: Vec<Rotation> = read_column(path, tensors, name::<Rotation>(prefix), n)?;
+    let scale: Vec<Scale> = read_column(path, tensors, name::<Scale>(prefix), n)?;
+    let sh: Vec<ShCoefficients> = read_column(path, tensors, name::<Color>(prefix), n)?;
     Ok((0..positions.len())
-        .map(|i| GaussianParams {
-            position: positions[i],
-            fourier: fourier[i],
-            temporal: temporal[i],
-            opacity: opacity[i],
-            rotation: rotation[i],
-            scale: scale[i],
-            color: color[i],
+        .map(|i| {
+            let (color, color_rest) = split_sh(&sh[i]);
+            GaussianParams {
+                position: positions[i],
+                fourier: fourier[i],
+                temporal: temporal[i],
+                opacity: opacity[i],
+                rotation: rotation[i],
+                scale: scale[i],
+                color,
+                color_rest,
+            }
         })
         .collect())
 }
 
-/// One component of every Gaussian as a tensor named `prefix` + `P::NAME`.
-pub(crate) fn column<'a, P: Param>(prefix: &str, rows: impl Iterator<Item = &'a P>) -> NamedTensor {
-    let width = P::default().values().len();
+/// The tensor name of parameter group `P`: `prefix` + [`Param::NAME`]. The `color` tensor
+/// holds every SH band (48 values per Gaussian) whether or not the Gaussians carry
+/// [`crate::components::ColorRest`], so files do not depend on the in-memory layout.
+pub(crate) fn name<P: Param>(prefix: &str) -> String {
+    format!("{prefix}{}", P::NAME)
+}
+
+/// One all-`f32` value of every Gaussian as a tensor `name`.
+pub(crate) fn column<T: Pod>(name: String, rows: impl Iterator<Item = T>) -> NamedTensor {
+    let width = size_of::<T>() / 4;
     let mut bytes = Vec::new();
     for row in rows {
-        for v in row.values() {
+        for v in bytemuck::cast_slice::<T, f32>(std::slice::from_ref(&row)) {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
     }
     NamedTensor {
-        name: format!("{prefix}{}", P::NAME),
+        name,
         dtype: Dtype::F32,
         width,
         bytes,
     }
 }
 
-/// Reads tensor `prefix` + `P::NAME` as `rows × fields` f32 values; `rows` must match when
-/// given.
-pub(crate) fn read_column<P: Param>(
+/// Reads tensor `name` as `rows × fields` f32 values (the fields of `T`); `rows` must match
+/// when given.
+pub(crate) fn read_column<T: Pod>(
     path: &Path,
     tensors: &safetensors::SafeTensors<'_>,
-    prefix: &str,
+    name: String,
     rows: Option<usize>,
-) -> Result<Vec<P>, ModelError> {
-    let name = format!("{prefix}{}", P::NAME);
+) -> Result<Vec<T>, ModelError> {
     let tensor_error = |message: String| ModelError::Tensor {
         path: path.to_path_buf(),
         tensor: name.clone(),
@@ -313,7 +342,7 @@ pub(crate) fn read_column<P: Param>(
     let view = tensors
         .tensor(&name)
         .map_err(|_| tensor_error("missing".into()))?;
-    let width = P::default().values().len();
+    let width = size_of::<T>() / 4;
     if view.dtype() != Dtype::F32 {
         return Err(tensor_error(format!(
             "dtype {:?}, expected F32",
@@ -327,16 +356,12 @@ pub(crate) fn read_column<P: Param>(
             rows.map_or("N".to_string(), |n| n.to_string())
         )));
     }
-    let mut out = vec![P::default(); shape[0]];
-    for (item, chunk) in out.iter_mut().zip(view.data().chunks_exact(width * 4)) {
-        for (value, bytes) in item.values_mut().iter_mut().zip(chunk.chunks_exact(4)) {
-            *value = f32::from_le_bytes(bytes.try_into().expect("chunks of 4 bytes"));
-        }
+    let mut out = vec![T::zeroed(); shape[0]];
+    let values = bytemuck::cast_slice_mut::<T, f32>(&mut out);
+    for (value, bytes) in values.iter_mut().zip(view.data().chunks_exact(4)) {
+        *value = f32::from_le_bytes(bytes.try_into().expect("chunks of 4 bytes"));
     }
-    if out
-        .iter()
-        .any(|p| p.values().iter().any(|v| !v.is_finite()))
-    {
+    if values.iter().any(|v| !v.is_finite()) {
         return Err(tensor_error("holds NaN or infinite values".into()));
     }
     Ok(out)
@@ -359,7 +384,7 @@ mod tests {
                 g.rotation.c0 = [1.0, 0.0, 0.0, 0.0];
                 g.rotation.c1 = [0.0, 0.1, 0.0, 0.0];
                 g.scale.d0 = [-3.0; 3];
-                g.color.sh[5] = [0.01, 0.02, 0.03];
+                g.color_rest.sh[4] = [0.01, 0.02, 0.03];
                 g
             })
             .collect();

@@ -20,7 +20,7 @@ use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{ElementDef, Property, PropertyAccess, PropertyAccessResult};
 
 use crate::components::{
-    Color, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
+    Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal, split_sh,
 };
 use crate::io::model::Model;
 use crate::model::deform::{fourier_offset, logit, rotation_at, temporal_opacity};
@@ -326,25 +326,29 @@ impl SplatCloud {
         let gaussians = self
             .splats
             .iter()
-            .map(|s| GaussianParams {
-                position: Position { mean: s.mean },
-                fourier: Fourier::default(),
-                temporal: Temporal {
-                    center: 0.5,
-                    scale: [STATIC_TEMPORAL_RAW; 2],
-                },
-                opacity: Opacity {
-                    logit: s.opacity_logit,
-                },
-                rotation: Rotation {
-                    c0: s.rotation,
-                    c1: [0.0; 4],
-                },
-                scale: Scale {
-                    d0: s.log_scale,
-                    d1: [0.0; 3],
-                },
-                color: Color { sh: s.sh },
+            .map(|s| {
+                let (color, color_rest) = split_sh(&s.sh);
+                GaussianParams {
+                    position: Position { mean: s.mean },
+                    fourier: Fourier::default(),
+                    temporal: Temporal {
+                        center: 0.5,
+                        scale: [STATIC_TEMPORAL_RAW; 2],
+                    },
+                    opacity: Opacity {
+                        logit: s.opacity_logit,
+                    },
+                    rotation: Rotation {
+                        c0: s.rotation,
+                        c1: [0.0; 4],
+                    },
+                    scale: Scale {
+                        d0: s.log_scale,
+                        d1: [0.0; 3],
+                    },
+                    color,
+                    color_rest,
+                }
             })
             .collect();
         let mut config = ModelConfig {
@@ -388,7 +392,7 @@ pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32)
             };
             Some(StaticSplat {
                 mean: mean.to_array(),
-                sh: g.color.sh,
+                sh: g.sh(),
                 opacity_logit: logit(sigma),
                 log_scale: std::array::from_fn(|i| g.scale.d0[i] + velocity[i] * dtw),
                 rotation: rotation_at(g.rotation.c0, g.rotation.c1, dtw),
