@@ -24,26 +24,31 @@ impl Rasterizer {
         let tiles_x = self.tiles_x();
         let height = d_color.len() / width.max(1);
         let background = self.background;
-        // Only the entries a tile walks (its first `tile_walked` ones) are written and read
-        // back, so the buffer needs no clearing.
-        self.entry_grads
-            .resize(self.bins.entry_count(), SplatGrad::default());
-        self.tile_walked.resize(self.bins.tile_offsets.len() - 1, 0);
-        self.tile_walked
+        // Only the entries a tile walks (its first ones, up to its largest contributor count)
+        // get a partial sum: pixels stop early, so that is a fraction of the entries.
+        let tile_count = self.bins.tile_offsets.len() - 1;
+        let walked = &mut self.walked_offsets;
+        walked.resize(tile_count + 1, 0);
+        walked[0] = 0;
+        walked[1..]
             .par_iter_mut()
             .zip(self.contributors.par_chunks(TILE_PIXELS))
             .for_each(|(walked, contributors)| {
                 *walked = contributors.iter().copied().max().unwrap_or(0)
             });
+        for t in 0..tile_count {
+            walked[t + 1] += walked[t];
+        }
+        self.entry_grads
+            .resize(walked[tile_count] as usize, SplatGrad::default());
 
         let bins = &self.bins;
         let packed = &self.packed;
         let final_t = &self.final_transmittance;
         let contributors = &self.contributors;
-        let tile_count = bins.tile_offsets.len() - 1;
         for_each_tile_mut(
             &mut self.entry_grads,
-            &bins.tile_offsets,
+            &self.walked_offsets,
             0..tile_count,
             &|tile, entry_grads| {
                 let entries = &bins.sorted_splats[bins.tile_range(tile)];
@@ -63,11 +68,10 @@ impl Rasterizer {
             },
         );
 
-        // Reduce the per-(tile, splat) partial sums to one gradient per splat, reading only
-        // the entries their tiles walked: pixels stop early, so most entries were never
-        // reached and their gradient is zero.
+        // Reduce the per-(tile, splat) partial sums to one gradient per splat; the entries
+        // their tiles did not walk were never reached and have zero gradient.
         let bins = &self.bins;
-        let (entry_grads, tile_walked) = (&self.entry_grads, &self.tile_walked);
+        let (entry_grads, walked) = (&self.entry_grads, &self.walked_offsets);
         grads.clear();
         grads.resize(splats.len(), SplatGrad::default());
         grads.par_iter_mut().enumerate().for_each(|(s, g)| {
@@ -77,9 +81,9 @@ impl Rasterizer {
             for ty in y0..y1 {
                 for tx in x0..x1 {
                     let tile = ty as usize * tiles_x + tx as usize;
-                    let position = bins.sorted_position[entry];
-                    if position < bins.tile_offsets[tile] + tile_walked[tile] {
-                        g.add(&entry_grads[position as usize]);
+                    let depth_rank = bins.sorted_position[entry] - bins.tile_offsets[tile];
+                    if depth_rank < walked[tile + 1] - walked[tile] {
+                        g.add(&entry_grads[(walked[tile] + depth_rank) as usize]);
                     }
                     entry += 1;
                 }

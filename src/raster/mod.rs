@@ -128,11 +128,12 @@ pub struct Rasterizer {
     contributors: Vec<u32>,
     /// Colour of the last forward pass, per tile: 256 red, 256 green, 256 blue values.
     tile_color: Vec<f32>,
-    /// Per-entry gradient partial sums (in tile-sorted entry order).
+    /// Gradient partial sums of the entries the last backward pass walked: tile t's first
+    /// entries (in depth order) at `walked_offsets[t]..walked_offsets[t + 1]`.
     entry_grads: Vec<SplatGrad>,
-    /// Per tile: how many of its entries the last backward pass walked (the largest
-    /// contributor count of its pixels); `entry_grads` beyond that are stale.
-    tile_walked: Vec<u32>,
+    /// Prefix sums over the tiles of how many entries the backward walks in each (the largest
+    /// contributor count of its pixels), one more than tiles.
+    walked_offsets: Vec<u32>,
     background: [f32; 3],
 }
 
@@ -171,11 +172,12 @@ impl Rasterizer {
             v.capacity() * std::mem::size_of::<T>()
         }
         self.bins.heap_bytes()
+            + bytes(&self.packed)
             + bytes(&self.final_transmittance)
             + bytes(&self.contributors)
             + bytes(&self.tile_color)
             + bytes(&self.entry_grads)
-            + bytes(&self.tile_walked)
+            + bytes(&self.walked_offsets)
     }
 
     fn tiles_x(&self) -> usize {
