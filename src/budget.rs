@@ -104,7 +104,8 @@ impl MemoryEstimate {
         Self {
             images: dataset.memory_bytes() as u64,
             pixel_buffers: (width as u64) * (height as u64) * BYTES_PER_PIXEL as u64,
-            per_gaussian: (bytes_per_gaussian(scene.model.sh_degree) as f64 * HEADROOM).ceil() as u64,
+            per_gaussian: (bytes_per_gaussian(scene.model.sh_degree) as f64 * HEADROOM).ceil()
+                as u64,
             initial_gaussians: (anchors * scene.init.points_per_anchor) as u64,
             max_gaussians: scene.densify.max_gaussians as u64,
         }
@@ -253,8 +254,16 @@ mod tests {
     /// 208 bytes at SH degree 0 (the higher bands are not stored).
     #[test]
     fn per_gaussian_bytes_cover_the_optimiser_state() {
-        assert!(bytes_per_gaussian(3) >= 4 * 388, "{}", bytes_per_gaussian(3));
-        assert!(bytes_per_gaussian(0) >= 4 * 208, "{}", bytes_per_gaussian(0));
+        assert!(
+            bytes_per_gaussian(3) >= 4 * 388,
+            "{}",
+            bytes_per_gaussian(3)
+        );
+        assert!(
+            bytes_per_gaussian(0) >= 4 * 208,
+            "{}",
+            bytes_per_gaussian(0)
+        );
         assert_eq!(
             bytes_per_gaussian(3) - bytes_per_gaussian(0),
             4 * 180,

@@ -115,6 +115,17 @@ pub fn accumulate_stats(
         });
 }
 
+/// What densification reads and edits of a Gaussian (and whether it has higher SH bands).
+pub type DensifyItem<'a> = (
+    Entity,
+    &'a mut Position,
+    &'a Rotation,
+    &'a mut Scale,
+    &'a Opacity,
+    &'a mut GradAccum,
+    Has<ColorRest>,
+);
+
 /// Clones small and splits large Gaussians whose ḡ exceeds their threshold, prunes transparent
 /// (and optionally oversized) ones, and resets the statistics.
 pub fn densify_and_prune(
@@ -122,15 +133,7 @@ pub fn densify_and_prune(
     settings: Res<Settings>,
     mut state: ResMut<TrainState>,
     mut rng: ResMut<Rng>,
-    mut gaussians: Query<(
-        Entity,
-        &mut Position,
-        &Rotation,
-        &mut Scale,
-        &Opacity,
-        &mut GradAccum,
-        Has<ColorRest>,
-    )>,
+    mut gaussians: Query<DensifyItem>,
 ) {
     let d = &settings.densify;
     let extent = settings.extent;

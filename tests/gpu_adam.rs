@@ -11,8 +11,8 @@ use glam::Vec2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tadgs::components::{
-    Adam, Color, ColorRest, Deformed, Fourier, Grad, GradAccum, Opacity, Param, Position, Rotation, Scale,
-    SplatSlot, Temporal,
+    Adam, Color, ColorRest, Deformed, Fourier, Grad, GradAccum, Opacity, Param, Position, Rotation,
+    Scale, SplatSlot, Temporal,
 };
 use tadgs::data::synthetic::demo_scene;
 use tadgs::gpu::{GpuAdam, GpuContext, GpuParamGroup, GpuStats, StatsConfig};

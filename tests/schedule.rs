@@ -263,3 +263,35 @@ fn densification_keeps_components_and_adam_state_consistent() {
     assert_eq!(split_parents, report.split);
     assert!(kept_moments > 0);
 }
+
+/// A model of SH degree 0 stores no higher bands (no `ColorRest`, nor its gradient or
+/// moments), and trains bit for bit like the same Gaussians carrying zero higher bands while
+/// the degree-3 model's active degree is still 0: bands above the active degree are never read.
+#[test]
+fn degree_zero_models_store_no_higher_bands() {
+    let (mut config, dataset) = tiny_scene();
+    config.model.sh_degree = 0;
+    let mut lean = Trainer::new(&config, dataset.clone());
+    config.model.sh_degree = 3;
+    let mut full = Trainer::new(&config, dataset);
+    let count = |t: &mut Trainer| {
+        let w = &mut t.world;
+        (
+            w.query::<&Color>().iter(w).count(),
+            w.query::<(&ColorRest, &Grad<ColorRest>, &Adam<ColorRest>)>()
+                .iter(w)
+                .count(),
+        )
+    };
+    let n = lean.gaussian_count();
+    assert!(n > 0);
+    assert_eq!(count(&mut lean), (n, 0));
+    assert_eq!(count(&mut full), (n, n));
+    for i in 0..10 {
+        lean.step();
+        full.step();
+        assert_eq!(full.state().sh_degree, 0);
+        let (a, b) = (lean.state().loss.total, full.state().loss.total);
+        assert_eq!(a.to_bits(), b.to_bits(), "iteration {i}: loss {a} vs {b}");
+    }
+}

@@ -113,12 +113,16 @@ impl Model {
         scene
     }
 
-    /// Spawns every Gaussian into `world` with fresh optimiser state (with the higher SH
-    /// bands when the model's degree is above 0).
+    /// Spawns every Gaussian into `world` with fresh optimiser state, with the higher SH
+    /// bands when the model's degree, or that of the scene in the world's
+    /// [`Settings`](crate::resources::Settings) (training on from the model), is above 0.
     pub fn spawn_into(&self, world: &mut World) {
+        let scene_degree = world
+            .get_resource::<crate::resources::Settings>()
+            .map_or(0, |s| s.model.sh_degree);
         spawn_gaussians(
             world,
-            self.sh_degree,
+            self.sh_degree.max(scene_degree),
             self.gaussians
                 .iter()
                 .map(|g| (g.bundle(), g.color_rest_bundle())),
