@@ -13,6 +13,7 @@ use crate::model::deform::{
     fourier_offset_backward, rotation_at_backward, scale_at_backward, temporal_opacity_backward,
 };
 use crate::model::project::project_backward;
+use crate::raster::SplatGrad;
 use crate::model::sh::sh_to_rgb_backward;
 use crate::resources::{DeformedGrad, LossImage, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::systems::deform::DeformInputs;
@@ -60,7 +61,8 @@ pub fn backward_splats(
         .zip(&buffers.splats)
         .zip(&buffers.splat_grads)
         .map(|((d, s), g)| {
-            if !s.visible {
+            // Splats behind opaque pixels get no gradient: nothing to chain back.
+            if !s.visible || *g == SplatGrad::default() {
                 return DeformedGrad::default();
             }
             let p = project_backward(
@@ -123,6 +125,21 @@ pub fn backward_parameters(
                 g_rest,
             ) = grads;
             let d = buffers.deformed_grads[slot.0 as usize];
+            if d == DeformedGrad::default() {
+                // Not drawn, or drawn only behind opaque pixels (most Gaussians of a dense
+                // scene): no gradient reaches its parameters, so the chain rule is skipped.
+                *g_pos = Grad::default();
+                *g_fourier = Grad::default();
+                *g_temporal = Grad::default();
+                *g_opacity = Grad::default();
+                *g_rotation = Grad::default();
+                *g_scale = Grad::default();
+                *g_color = Grad::default();
+                if let Some(mut g_rest) = g_rest {
+                    *g_rest = Grad::default();
+                }
+                return;
+            }
             let dtw = warped.dtw;
 
             let degree = if rest.is_some() { sh_degree } else { 0 };
