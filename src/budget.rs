@@ -22,7 +22,7 @@ use std::mem::size_of;
 use crate::components::{Deformed, gaussian_bytes};
 use crate::data::Dataset;
 use crate::data::init::anchor_frames;
-use crate::raster::{Splat, SplatGrad};
+use crate::raster::{PACKED_SPLAT_BYTES, Splat, SplatGrad};
 use crate::resources::DeformedGrad;
 use crate::scene::SceneConfig;
 
@@ -42,17 +42,21 @@ pub const HEADROOM: f64 = 1.25;
 pub fn bytes_per_gaussian(sh_degree: u32) -> usize {
     // ECS storage: the components plus the entity id in its table and its location record.
     let ecs = gaussian_bytes(sh_degree) + 8 + 16;
-    // Splatting arrays indexed by slot: deformed values, splat, gradients, NDC gradient norm,
-    // tile rectangle and entry offset.
+    // Splatting arrays indexed by slot: deformed values, splat, packed splat, gradients, NDC
+    // gradient norm, tile rectangle, entry offset, depth key and depth-ordered binning record.
     let slots = size_of::<Deformed>()
         + size_of::<Splat>()
+        + PACKED_SPLAT_BYTES
         + size_of::<SplatGrad>()
         + size_of::<DeformedGrad>()
         + 4
         + 16
-        + 4;
-    // Per (tile, Gaussian) entry: sorted index, sort key, position and gradient partial sum.
-    let entries = TILES_PER_GAUSSIAN * (4 + 8 + 4 + size_of::<SplatGrad>());
+        + 4
+        + 8
+        + 24;
+    // Per (tile, Gaussian) entry: sorted index, position and gradient partial sum (an upper
+    // bound: only the entries the backward walks get one).
+    let entries = TILES_PER_GAUSSIAN * (4 + 4 + size_of::<SplatGrad>());
     ecs + slots + entries
 }
 

@@ -91,6 +91,9 @@ struct Packed {
     span: [f32; 3],
 }
 
+/// Bytes of one splat as the pixel loops read it (for memory estimates).
+pub(crate) const PACKED_SPLAT_BYTES: usize = size_of::<Packed>();
+
 impl Packed {
     fn new(s: &Splat) -> Self {
         let [a, b, c] = s.conic;
