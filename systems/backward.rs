@@ -13,8 +13,8 @@ use crate::model::deform::{
     fourier_offset_backward, rotation_at_backward, scale_at_backward, temporal_opacity_backward,
 };
 use crate::model::project::project_backward;
-use crate::raster::SplatGrad;
 use crate::model::sh::sh_to_rgb_backward;
+use crate::raster::SplatGrad;
 use crate::resources::{DeformedGrad, LossImage, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::systems::deform::DeformInputs;
 
@@ -142,9 +142,8 @@ pub fn backward_parameters(
             }
             let dtw = warped.dtw;
 
-            let degree = if rest.is_some() { sh_degree } else { 0 };
             let (d_sh, d_dir) = sh_to_rgb_backward(
-                degree,
+                sh_degree,
                 &sh_coefficients(color, rest),
                 deformed.mean() - eye,
                 d.color,

@@ -40,11 +40,7 @@ pub fn deform(
                 rotation: rotation_at(rotation.c0, rotation.c1, dtw),
                 scale: scale_at(scale.d0, scale_velocity, dtw).to_array(),
                 opacity: temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw),
-                color: sh_to_rgb(
-                    if rest.is_some() { sh_degree } else { 0 },
-                    &sh_coefficients(color, rest),
-                    mean - eye,
-                ),
+                color: sh_to_rgb(sh_degree, &sh_coefficients(color, rest), mean - eye),
             };
         },
     );
