@@ -93,17 +93,16 @@ impl Rasterizer {
 }
 
 /// Per-pixel state of the backward walk, in lane groups (group r holds pixels r·8 .. r·8 + 8).
+/// Colours enter the gradient only through their dot product with dL/dpixel, so the colour
+/// behind a splat is carried as that one dot product instead of three channels.
 struct PixelState {
     /// Transmittance in front of the splat being visited.
     transmittance: [[f32; LANES]; SLOTS],
-    /// Colour of everything behind the last visited splat (before blending it).
-    accum: [[[f32; LANES]; SLOTS]; 3],
-    last_alpha: [[f32; LANES]; SLOTS],
-    last_color: [[[f32; LANES]; SLOTS]; 3],
+    /// (colour of everything behind the splat being visited) · dL/dpixel.
+    behind: [[f32; LANES]; SLOTS],
     d_pixel: [[[f32; LANES]; SLOTS]; 3],
-    /// background · dL/dpixel.
-    bg_dot: [[f32; LANES]; SLOTS],
-    final_t: [[f32; LANES]; SLOTS],
+    /// final transmittance · (background · dL/dpixel): the background's share of the gradient.
+    background_term: [[f32; LANES]; SLOTS],
     contributors: [[u32; LANES]; SLOTS],
 }
 
@@ -123,12 +122,9 @@ simd_kernel! {
         let zero = [[0f32; LANES]; SLOTS];
         let mut st = PixelState {
             transmittance: zero,
-            accum: [zero; 3],
-            last_alpha: zero,
-            last_color: [zero; 3],
+            behind: zero,
             d_pixel: [zero; 3],
-            bg_dot: zero,
-            final_t: zero,
+            background_term: zero,
             contributors: [[0; LANES]; SLOTS],
         };
         // Groups whose pixels all stopped before entry k are skipped.
@@ -140,12 +136,12 @@ simd_kernel! {
                 if px < size.0 && py < size.1 {
                     let d = d_color[py * size.0 + px];
                     st.transmittance[r][x] = final_t[p];
-                    st.final_t[r][x] = final_t[p];
                     st.contributors[r][x] = contributors[p];
                     for c in 0..3 {
                         st.d_pixel[c][r][x] = d[c];
                     }
-                    st.bg_dot[r][x] = (0..3).map(|c| background[c] * d[c]).sum();
+                    let bg_dot: f32 = (0..3).map(|c| background[c] * d[c]).sum();
+                    st.background_term[r][x] = final_t[p] * bg_dot;
                     group_contributors[r] = group_contributors[r].max(contributors[p]);
                 }
             }
@@ -207,25 +203,23 @@ fn backward_lanes(
     // costs a dozen cycles on AMD CPUs.
     let t = t_behind * inv_one_minus.select(blended, one);
     pair.set(&mut st.transmittance, t.0);
-    let la = F16(pair.get(&st.last_alpha));
     let weight = (alpha * t).select(blended, zero);
-    let mut d_alpha = zero;
+    // This splat's colour · dL/dpixel, and its colour gradient.
+    let mut color_dot = zero;
     for ch in 0..3 {
-        // Colour of everything behind this splat, as seen through it.
-        let accum = F16(pair.get(&st.accum[ch]));
-        let last_color = F16(pair.get(&st.last_color[ch]));
-        let behind = accum + (la * (last_color - accum)).select(blended, zero);
-        pair.set(&mut st.accum[ch], behind.0);
-        let color = F16::splat(sp.color[ch]);
-        pair.set(&mut st.last_color[ch], color.select(blended, last_color).0);
         let d_pixel = F16(pair.get(&st.d_pixel[ch]));
-        d_alpha = d_alpha + (color - behind) * d_pixel;
+        color_dot = color_dot + F16::splat(sp.color[ch]) * d_pixel;
         acc[6 + ch] = acc[6 + ch] + weight * d_pixel;
     }
-    pair.set(&mut st.last_alpha, alpha.select(blended, la).0);
+    let behind = F16(pair.get(&st.behind));
+    let towards_color = color_dot - behind;
+    // Blending this splat over what is behind it: behind ← behind + alpha·(colour − behind).
+    pair.set(
+        &mut st.behind,
+        (behind + (alpha * towards_color).select(blended, zero)).0,
+    );
     // The background is seen through every splat: final_T = t·(1 − alpha)·(rest).
-    let d_alpha =
-        d_alpha * t - F16(pair.get(&st.final_t)) * inv_one_minus * F16(pair.get(&st.bg_dot));
+    let d_alpha = towards_color * t - F16(pair.get(&st.background_term)) * inv_one_minus;
     // A clamped alpha passes no gradient to opacity or shape.
     let d_alpha = d_alpha.select(blended & unclamped, zero);
     let d_power = opacity * g * d_alpha;
