@@ -155,7 +155,8 @@ simd_kernel! {
             let sp = &splats[entries[k] as usize];
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
             let spans = row_spans(sp, origin, (x0, x1));
-            // Lane-wise partial sums of the nine gradient entries, reduced once per (tile, splat).
+            // Lane-wise partial sums of the nine gradient terms (see [`backward_lanes`]), reduced
+            // once per (tile, splat).
             let mut acc = [F16::default(); 9];
             let mut walking: GroupBits = 0;
             for (r, &count) in group_contributors.iter().enumerate() {
@@ -165,20 +166,23 @@ simd_kernel! {
                 let falloff = falloff_pair::<FUSED>(sp, origin, &spans, pair);
                 backward_lanes(sp, &mut st, pair, k as u32, falloff, &mut acc);
             }
-            let sum = acc.map(F16::sum);
+            let [sx, sy, sxx, sxy, syy, opacity, r, g, b] = acc.map(F16::sum);
+            // power = −½(a·dx² + c·dy²) − b·dx·dy, and dx = x − mean.x: dpower/dmean.x = a·dx + b·dy.
+            let [ca, cb, cc] = sp.conic;
             entry_grads[k] = SplatGrad {
-                mean2d: glam::Vec2::new(sum[0], sum[1]),
-                conic: [sum[2], sum[3], sum[4]],
-                opacity: sum[5],
-                color: [sum[6], sum[7], sum[8]],
+                mean2d: glam::Vec2::new(ca * sx + cb * sy, cc * sy + cb * sx),
+                conic: [-0.5 * sxx, -sxy, -0.5 * syy],
+                opacity,
+                color: [r, g, b],
             };
         }
     }
 }
 
 /// One pair of lane groups of the backward walk for splat entry `k`: un-blends it from every
-/// pixel it was blended into and adds its gradient terms to `acc` (mean x, y; conic a, b, c;
-/// opacity; r, g, b).
+/// pixel it was blended into and adds its gradient terms to `acc`: with p = dL/dpower, the
+/// moments p·dx, p·dy, p·dx², p·dx·dy, p·dy² (the splat's mean and conic gradients are fixed
+/// combinations of their sums), then dL/dopacity and dL/d(r, g, b).
 #[inline(always)]
 fn backward_lanes(
     sp: &Packed,
@@ -189,7 +193,6 @@ fn backward_lanes(
     acc: &mut [F16; 9],
 ) {
     let (zero, one) = (F16::splat(0.0), F16::splat(1.0));
-    let [a, b, c] = sp.conic.map(F16::splat);
     let opacity = F16::splat(sp.opacity);
     let blended = zero.lt(g) & M16::below(k, pair.get(&st.contributors));
     let raw_alpha = opacity * g;
@@ -222,12 +225,13 @@ fn backward_lanes(
     let d_alpha = towards_color * t - F16(pair.get(&st.background_term)) * inv_one_minus;
     // A clamped alpha passes no gradient to opacity or shape.
     let d_alpha = d_alpha.select(blended & unclamped, zero);
-    let d_power = opacity * g * d_alpha;
-    let half = F16::splat(0.5);
-    acc[0] = acc[0] + d_power * (a * dx + b * dy);
-    acc[1] = acc[1] + d_power * (c * dy + b * dx);
-    acc[2] = acc[2] - half * dx * dx * d_power;
-    acc[3] = acc[3] - dx * dy * d_power;
-    acc[4] = acc[4] - half * dy * dy * d_power;
-    acc[5] = acc[5] + g * d_alpha;
+    let g_d_alpha = g * d_alpha;
+    let d_power = opacity * g_d_alpha;
+    let (power_dx, power_dy) = (d_power * dx, d_power * dy);
+    acc[0] = acc[0] + power_dx;
+    acc[1] = acc[1] + power_dy;
+    acc[2] = acc[2] + power_dx * dx;
+    acc[3] = acc[3] + power_dx * dy;
+    acc[4] = acc[4] + power_dy * dy;
+    acc[5] = acc[5] + g_d_alpha;
 }
