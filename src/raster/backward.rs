@@ -164,7 +164,7 @@ simd_kernel! {
             }
             for pair in Pairs(spans.groups(y0, y1) & walking) {
                 let falloff = falloff_pair::<FUSED>(sp, origin, &spans, pair);
-                backward_lanes(sp, &mut st, pair, k as u32, falloff, &mut acc);
+                backward_lanes::<FUSED>(sp, &mut st, pair, k as u32, falloff, &mut acc);
             }
             let [sx, sy, sxx, sxy, syy, opacity, r, g, b] = acc.map(F16::sum);
             // power = −½(a·dx² + c·dy²) − b·dx·dy, and dx = x − mean.x: dpower/dmean.x = a·dx + b·dy.
@@ -184,7 +184,7 @@ simd_kernel! {
 /// moments p·dx, p·dy, p·dx², p·dx·dy, p·dy² (the splat's mean and conic gradients are fixed
 /// combinations of their sums), then dL/dopacity and dL/d(r, g, b).
 #[inline(always)]
-fn backward_lanes(
+fn backward_lanes<const FUSED: bool>(
     sp: &Packed,
     st: &mut PixelState,
     pair: Pair,
@@ -206,23 +206,25 @@ fn backward_lanes(
     // costs a dozen cycles on AMD CPUs.
     let t = t_behind * inv_one_minus.select(blended, one);
     pair.set(&mut st.transmittance, t.0);
-    let weight = (alpha * t).select(blended, zero);
+    let alpha_blended = alpha.select(blended, zero);
+    let weight = alpha_blended * t;
     // This splat's colour · dL/dpixel, and its colour gradient.
     let mut color_dot = zero;
     for ch in 0..3 {
         let d_pixel = F16(pair.get(&st.d_pixel[ch]));
-        color_dot = color_dot + F16::splat(sp.color[ch]) * d_pixel;
-        acc[6 + ch] = acc[6 + ch] + weight * d_pixel;
+        color_dot = F16::splat(sp.color[ch]).mul_add::<FUSED>(d_pixel, color_dot);
+        acc[6 + ch] = weight.mul_add::<FUSED>(d_pixel, acc[6 + ch]);
     }
     let behind = F16(pair.get(&st.behind));
     let towards_color = color_dot - behind;
     // Blending this splat over what is behind it: behind ← behind + alpha·(colour − behind).
     pair.set(
         &mut st.behind,
-        (behind + (alpha * towards_color).select(blended, zero)).0,
+        alpha_blended.mul_add::<FUSED>(towards_color, behind).0,
     );
     // The background is seen through every splat: final_T = t·(1 − alpha)·(rest).
-    let d_alpha = towards_color * t - F16(pair.get(&st.background_term)) * inv_one_minus;
+    let background = F16(pair.get(&st.background_term)) * inv_one_minus;
+    let d_alpha = towards_color.mul_add::<FUSED>(t, zero - background);
     // A clamped alpha passes no gradient to opacity or shape.
     let d_alpha = d_alpha.select(blended & unclamped, zero);
     let g_d_alpha = g * d_alpha;
@@ -230,8 +232,8 @@ fn backward_lanes(
     let (power_dx, power_dy) = (d_power * dx, d_power * dy);
     acc[0] = acc[0] + power_dx;
     acc[1] = acc[1] + power_dy;
-    acc[2] = acc[2] + power_dx * dx;
-    acc[3] = acc[3] + power_dx * dy;
-    acc[4] = acc[4] + power_dy * dy;
+    acc[2] = power_dx.mul_add::<FUSED>(dx, acc[2]);
+    acc[3] = power_dx.mul_add::<FUSED>(dy, acc[3]);
+    acc[4] = power_dy.mul_add::<FUSED>(dy, acc[4]);
     acc[5] = acc[5] + g_d_alpha;
 }

@@ -174,7 +174,7 @@ simd_kernel! {
                 let blend = drawn.and_not(stop);
                 let w = (alpha * t_front).select(blend, zero);
                 for c in 0..3 {
-                    let sum = F16(pair.get(&rgb[c])) + splat_color[c] * w;
+                    let sum = splat_color[c].mul_add::<FUSED>(w, F16(pair.get(&rgb[c])));
                     pair.set(&mut rgb[c], sum.0);
                 }
                 pair.set(&mut t, next.select(blend, t_front).0);

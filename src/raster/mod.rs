@@ -574,6 +574,16 @@ impl F16 {
     fn sum(self) -> f32 {
         self.0.iter().sum()
     }
+
+    /// self·b + c, fused where the kernel has FMA (see [`mul_add`]).
+    #[inline(always)]
+    fn mul_add<const FUSED: bool>(self, b: F16, c: F16) -> F16 {
+        let mut out = [0f32; PAIR];
+        for i in 0..PAIR {
+            out[i] = mul_add::<FUSED>(self.0[i], b.0[i], c.0[i]);
+        }
+        F16(out)
+    }
 }
 
 impl M16 {
