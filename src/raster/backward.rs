@@ -163,7 +163,7 @@ simd_kernel! {
                 walking |= (((k as u32) < count) as GroupBits) << r;
             }
             for pair in Pairs(spans.groups(y0, y1) & walking) {
-                let falloff = falloff_pair::<FUSED>(sp, origin, &spans, pair);
+                let falloff = falloff_pair::<FUSED>(sp, &spans, pair);
                 backward_lanes::<FUSED>(sp, &mut st, pair, k as u32, falloff, &mut acc);
             }
             let [sx, sy, sxx, sxy, syy, opacity, r, g, b] = acc.map(F16::sum);

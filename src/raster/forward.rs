@@ -161,7 +161,7 @@ simd_kernel! {
             let opacity = F16::splat(sp.opacity);
             let splat_color = sp.color.map(F16::splat);
             for pair in Pairs(spans.groups(y0, y1) & live_groups) {
-                let g = falloff_pair::<FUSED>(sp, origin, &spans, pair).gauss;
+                let g = falloff_pair::<FUSED>(sp, &spans, pair).gauss;
                 // Whole-register selects, never per-lane conditional stores (masked
                 // stores are slow on some CPUs).
                 let raw = opacity * g;

@@ -284,31 +284,31 @@ const LANES: usize = 8;
 /// Lane groups per tile.
 const GROUPS: usize = TILE_PIXELS / LANES;
 
-/// Lane groups of one tile row that overlap the box columns [x0, x1), and for group `h` the
-/// lanes [lo, hi) inside the box.
-#[inline(always)]
-fn group_lanes(h: usize, x0: usize, x1: usize) -> (usize, usize) {
-    let start = h * LANES;
-    (
-        x0.saturating_sub(start).min(LANES),
-        x1.saturating_sub(start).min(LANES),
-    )
-}
-
 /// For every tile row, the columns of the box columns [x0, x1) that can hold drawn pixels of
 /// the splat: where the exponent reaches `min_power` (minus a margin for rounding), plus a
 /// pixel each side. The per-pixel test still decides; this only skips lane groups that cannot
 /// pass it. A row that misses the ellipse gets an empty span. All sixteen rows are computed at
-/// once in vector lanes, so a splat pays for its spans once per tile instead of once per row.
+/// once in vector lanes, so a splat pays for its spans once per tile instead of once per row;
+/// so are the per-row and per-column terms of its exponent, which [`falloff_pair`] then only
+/// loads.
 #[inline(always)]
 fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> RowSpans {
     let [s0, s1, b_over_a] = sp.span;
     let (x0f, x1f) = (x0 as f32, x1 as f32);
     let (origin_x, origin_y) = (origin.0 as f32, origin.1 as f32);
+    // The exponent in powers of two, e2 = (qa·dx + qb·dy)·dx + qc·dy², is two multiply-adds
+    // per pixel once the row's terms qb·dy and qc·dy² are known.
+    let [_, b, c] = sp.conic;
+    let log2e = std::f32::consts::LOG2_E;
+    let (qb, qc) = (-b * log2e, -0.5 * c * log2e);
     let mut spans = RowSpans::default();
     for y in 0..TILE {
-        // The same dy as the pixel loops compute (integers are exact in f32).
+        // Pixel centres are at integer + 0.5 (integers are exact in f32).
         let dy = (origin_y + y as f32) + 0.5 - sp.mean[1];
+        spans.dy[y] = dy;
+        spans.linear[y] = qb * dy;
+        spans.constant[y] = qc * dy * dy;
+        spans.dx[y] = (origin_x + y as f32) + 0.5 - sp.mean[0];
         let q = s0 - s1 * dy * dy;
         let half = q.max(0.0).sqrt();
         // Tile-local column of dx = 0 (pixel x has its centre at x + 0.5).
@@ -317,6 +317,8 @@ fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> R
         let lo = ((centre - half).floor() - 1.0).max(x0f).min(x1f);
         let hi = ((centre + half).ceil() + 2.0).min(x1f).max(lo);
         let hi = if q < 0.0 { lo } else { hi };
+        spans.lo_column[y] = lo;
+        spans.hi_column[y] = hi;
         // SAFETY: lo and hi are finite and in [0, 16].
         unsafe {
             spans.lo[y] = lo.to_int_unchecked::<u32>();
@@ -326,12 +328,21 @@ fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> R
     spans
 }
 
-/// Column spans [lo, hi) per tile row (see [`row_spans`]); the extra row, always empty, is
-/// the one of the idle slot ([`IDLE`]).
+/// Column spans [lo, hi) per tile row (see [`row_spans`]), as integers for [`RowSpans::groups`]
+/// and as floats for the pixel loops' compares, and the terms of the splat's exponent per row
+/// and per column. The extra row, always empty, is the one of the idle slot ([`IDLE`]).
 #[derive(Default)]
 struct RowSpans {
     lo: [u32; TILE + 1],
     hi: [u32; TILE + 1],
+    lo_column: [f32; TILE + 1],
+    hi_column: [f32; TILE + 1],
+    /// Per row: dy, qb·dy and qc·dy² (see [`row_spans`]).
+    dy: [f32; TILE + 1],
+    linear: [f32; TILE + 1],
+    constant: [f32; TILE + 1],
+    /// Per column: dx.
+    dx: [f32; TILE],
 }
 
 /// A set of a tile's lane groups, bit r for group r (tile rows are two groups each).
@@ -361,13 +372,6 @@ impl RowSpans {
             bits |= ((first as GroupBits) | (second as GroupBits) << 1) << (2 * y);
         }
         bits
-    }
-
-    /// Lanes [lo, hi) of group `r` inside its row's span (none for [`IDLE`]).
-    #[inline(always)]
-    fn lanes(&self, r: usize) -> (usize, usize) {
-        let y = r / 2;
-        group_lanes(r % 2, self.lo[y] as usize, self.hi[y] as usize)
     }
 }
 
@@ -433,45 +437,36 @@ struct Falloff {
 }
 
 #[inline(always)]
-fn falloff_pair<const FUSED: bool>(
-    sp: &Packed,
-    origin: (usize, usize),
-    spans: &RowSpans,
-    pair: Pair,
-) -> Falloff {
+fn falloff_pair<const FUSED: bool>(sp: &Packed, spans: &RowSpans, pair: Pair) -> Falloff {
     let (mut dx, mut dy, mut gauss) = ([0f32; PAIR], [0f32; PAIR], [0f32; PAIR]);
-    // The exponent in powers of two, e2(dx) = (qa·dx + qb·dy)·dx + qc·dy², is two multiply-adds
-    // per pixel once the row's terms are known.
-    let [a, b, c] = sp.conic;
-    let log2e = std::f32::consts::LOG2_E;
-    let (qa, qb, qc) = (-0.5 * a * log2e, -b * log2e, -0.5 * c * log2e);
-    // Per half: where its lanes start, the row's offset and terms, and its lanes in the span,
-    // as floats for 32-bit compares (usize ones would split each register in four).
-    let mut x_start = [0f32; 2];
-    let mut row_dy = [0f32; 2];
-    let mut row_terms = [(0f32, 0f32); 2];
-    let mut bounds = [(0f32, 0f32); 2];
+    let qa = -0.5 * sp.conic[0] * std::f32::consts::LOG2_E;
+    // Per half: the row's terms, and its columns and their offsets.
+    let mut row = [(0f32, 0f32, 0f32, 0f32, 0f32); 2];
+    let mut columns = [[0f32; LANES]; 2];
+    let mut column_dx = [[0f32; LANES]; 2];
     for (half, &r) in pair.0.iter().enumerate() {
-        let (y, h) = (r / 2, r % 2);
-        let d = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
-        row_dy[half] = d;
-        row_terms[half] = (qb * d, qc * d * d);
-        x_start[half] = (origin.0 + h * LANES) as f32 + 0.5 - sp.mean[0];
-        let (lo, hi) = spans.lanes(r);
-        bounds[half] = (lo as f32, hi as f32);
+        let (y, start) = (r / 2, (r % 2) * LANES);
+        row[half] = (
+            spans.dy[y],
+            spans.linear[y],
+            spans.constant[y],
+            spans.lo_column[y],
+            spans.hi_column[y],
+        );
+        columns[half] = COLUMNS[start..start + LANES].try_into().unwrap();
+        column_dx[half] = spans.dx[start..start + LANES].try_into().unwrap();
     }
     for i in 0..PAIR {
-        let half = i / LANES;
-        let lane = (i % LANES) as f32;
-        let (lo, hi) = bounds[half];
-        let (linear, constant) = row_terms[half];
-        dx[i] = x_start[half] + lane;
-        dy[i] = row_dy[half];
+        let (half, lane) = (i / LANES, i % LANES);
+        let (row_dy, linear, constant, lo, hi) = row[half];
+        dx[i] = column_dx[half][lane];
+        dy[i] = row_dy;
         let e2 = mul_add::<FUSED>(mul_add::<FUSED>(qa, dx[i], linear), dx[i], constant);
         let g = exp2_falloff::<FUSED>(e2);
-        let in_box = lane >= lo && lane < hi;
+        let column = columns[half][lane];
+        let in_span = column >= lo && column < hi;
         // Below `min_exp2` alpha < 1/255; a positive exponent is numerical noise.
-        let drawn = in_box & !(e2 > 0.0) & !(e2 < sp.min_exp2) & (sp.opacity * g >= ALPHA_MIN);
+        let drawn = in_span & !(e2 > 0.0) & !(e2 < sp.min_exp2) & (sp.opacity * g >= ALPHA_MIN);
         gauss[i] = pick(drawn, g, 0.0);
     }
     Falloff {
@@ -480,6 +475,17 @@ fn falloff_pair<const FUSED: bool>(
         gauss: F16(gauss),
     }
 }
+
+/// Tile-local column numbers as floats.
+const COLUMNS: [f32; TILE] = {
+    let mut columns = [0f32; TILE];
+    let mut x = 0;
+    while x < TILE {
+        columns[x] = x as f32;
+        x += 1;
+    }
+    columns
+};
 
 /// Lanes of a [`Pair`]: two groups of eight pixels.
 const PAIR: usize = 2 * LANES;
