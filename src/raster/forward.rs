@@ -86,13 +86,24 @@ impl Rasterizer {
             .zip(out.alpha.par_chunks_mut(width.max(1)))
             .enumerate()
             .for_each(|(y, (row, alpha))| {
+                // Each tile holds 16 consecutive pixels of this row, per channel.
                 let (ty, ly) = (y / TILE, y % TILE);
-                for (x, (value, a)) in row.iter_mut().zip(alpha).enumerate() {
-                    let tile = ty * tiles_x + x / TILE;
-                    let p = ly * TILE + x % TILE;
-                    let colour = &self.tile_color[3 * tile * TILE_PIXELS..];
-                    *value = [0, 1, 2].map(|c| colour[c * TILE_PIXELS + p]);
-                    *a = 1.0 - self.final_transmittance[tile * TILE_PIXELS + p];
+                for (tx, (values, alphas)) in
+                    row.chunks_mut(TILE).zip(alpha.chunks_mut(TILE)).enumerate()
+                {
+                    let tile = ty * tiles_x + tx;
+                    let first = tile * TILE_PIXELS + ly * TILE;
+                    let len = values.len();
+                    let channel = |c: usize| {
+                        let start = 3 * tile * TILE_PIXELS + c * TILE_PIXELS + ly * TILE;
+                        &self.tile_color[start..start + len]
+                    };
+                    let (red, green, blue) = (channel(0), channel(1), channel(2));
+                    let transmittance = &self.final_transmittance[first..first + len];
+                    for (i, (value, a)) in values.iter_mut().zip(alphas.iter_mut()).enumerate() {
+                        *value = [red[i], green[i], blue[i]];
+                        *a = 1.0 - transmittance[i];
+                    }
                 }
             });
     }
