@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use super::binning::for_each_tile_mut;
 use super::{
     ALPHA_MAX, F16, Falloff, GROUPS, GroupBits, LANES, M16, PREFETCH_AHEAD, Packed, Pair, Pairs,
-    Rasterizer, SLOTS, Splat, SplatGrad, TILE, TILE_PIXELS, box_in_tile, falloff_pair,
+    Rasterizer, RowSpans, SLOTS, Splat, SplatGrad, TILE, TILE_PIXELS, box_in_tile, falloff_pair,
     prefetch_entry, row_spans, simd_kernel,
 };
 
@@ -148,13 +148,14 @@ simd_kernel! {
         }
         let max_contributor = group_contributors.iter().copied().max().unwrap_or(0) as usize;
 
+        let mut spans = RowSpans::default();
         for k in (0..max_contributor).rev() {
             if let Some(ahead) = k.checked_sub(PREFETCH_AHEAD) {
                 prefetch_entry(splats, entries, ahead);
             }
             let sp = &splats[entries[k] as usize];
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
-            let spans = row_spans(sp, origin, (x0, x1));
+            row_spans(&mut spans, sp, origin, (x0, x1));
             // Lane-wise partial sums of the nine gradient terms (see [`backward_lanes`]), reduced
             // once per (tile, splat).
             let mut acc = [F16::default(); 9];

@@ -4,8 +4,8 @@ use rayon::prelude::*;
 
 use super::{
     ALPHA_MAX, F16, GROUPS, GroupBits, LANES, M16, PREFETCH_AHEAD, Packed, Pairs, Rasterizer,
-    RenderOutput, SLOTS, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile, falloff_pair,
-    prefetch_entry, row_spans, simd_kernel,
+    RenderOutput, RowSpans, SLOTS, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile,
+    falloff_pair, prefetch_entry, row_spans, simd_kernel,
 };
 
 impl Rasterizer {
@@ -157,6 +157,7 @@ simd_kernel! {
         let (zero, one) = (F16::splat(0.0), F16::splat(1.0));
         let (alpha_max, t_min) = (F16::splat(ALPHA_MAX), F16::splat(TRANSMITTANCE_MIN));
 
+        let mut spans = RowSpans::default();
         for (k, &s) in entries.iter().enumerate() {
             if k % LIVE_REFRESH == 0 {
                 live_groups = live_bits(&live);
@@ -167,7 +168,7 @@ simd_kernel! {
             prefetch_entry(splats, entries, k + PREFETCH_AHEAD);
             let sp = &splats[s as usize];
             let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
-            let spans = row_spans(sp, origin, (x0, x1));
+            row_spans(&mut spans, sp, origin, (x0, x1));
             let contributor = k as u32 + 1;
             let opacity = F16::splat(sp.opacity);
             let splat_color = sp.color.map(F16::splat);

@@ -291,8 +291,10 @@ const GROUPS: usize = TILE_PIXELS / LANES;
 /// once in vector lanes, so a splat pays for its spans once per tile instead of once per row;
 /// so are the per-row and per-column terms of its exponent, which [`falloff_pair`] then only
 /// loads.
+/// `spans` is reused from entry to entry (its idle row is never written, so it stays empty):
+/// a fresh one per entry would cost a memset of its 540 bytes.
 #[inline(always)]
-fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> RowSpans {
+fn row_spans(spans: &mut RowSpans, sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) {
     let [s0, s1, b_over_a] = sp.span;
     let (x0f, x1f) = (x0 as f32, x1 as f32);
     let (origin_x, origin_y) = (origin.0 as f32, origin.1 as f32);
@@ -301,7 +303,6 @@ fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> R
     let [_, b, c] = sp.conic;
     let log2e = std::f32::consts::LOG2_E;
     let (qb, qc) = (-b * log2e, -0.5 * c * log2e);
-    let mut spans = RowSpans::default();
     for y in 0..TILE {
         // Pixel centres are at integer + 0.5 (integers are exact in f32).
         let dy = (origin_y + y as f32) + 0.5 - sp.mean[1];
@@ -325,7 +326,6 @@ fn row_spans(sp: &Packed, origin: (usize, usize), (x0, x1): (usize, usize)) -> R
             spans.hi[y] = hi.to_int_unchecked::<u32>();
         }
     }
-    spans
 }
 
 /// Column spans [lo, hi) per tile row (see [`row_spans`]), as integers for [`RowSpans::groups`]
