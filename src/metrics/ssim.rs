@@ -142,23 +142,44 @@ fn band_rows(h: usize) -> usize {
 }
 
 /// Zero-padded horizontal blur of one row: out(x) = Σ_d g[d + R] row(x + d) over in-image x + d.
+/// Every output value sums its taps in the same order from 0, so the interior and the border
+/// paths give the same bits as one pass per tap would.
 #[inline(always)]
 fn blur_row<const K: usize>(row: &[[f32; K]], out: &mut [[f32; K]], g: &[f32; WIN]) {
     let w = row.len();
-    // One multiply-add per tap over the whole row of flattened K-vectors, which the compiler
-    // vectorises.
     let (out, row) = (out.as_flattened_mut(), row.as_flattened());
-    out.fill(0.0);
-    for (tap, &wgt) in g.iter().enumerate() {
-        // Pixels x in [x0, x1) read x + tap − R, which is inside the row.
-        let x0 = RADIUS.saturating_sub(tap);
-        let x1 = (w + RADIUS).saturating_sub(tap).min(w);
-        if x0 >= x1 {
-            continue;
+    // Columns whose window lies inside the row: in the flattened K-vectors, tap t of output
+    // value i is input value i − R·K + t·K, so each output is eleven loads and multiply-adds
+    // kept in a register, and consecutive outputs vectorise.
+    let interior = if w > 2 * RADIUS {
+        RADIUS..w - RADIUS
+    } else {
+        0..0
+    };
+    let n = interior.len() * K;
+    if n > 0 {
+        let taps: [&[f32]; WIN] = std::array::from_fn(|t| &row[t * K..t * K + n]);
+        for (i, o) in out[interior.start * K..interior.start * K + n]
+            .iter_mut()
+            .enumerate()
+        {
+            let mut acc = 0.0;
+            for t in 0..WIN {
+                acc += g[t] * taps[t][i];
+            }
+            *o = acc;
         }
-        let src = &row[(x0 + tap - RADIUS) * K..(x1 + tap - RADIUS) * K];
-        for (o, v) in out[x0 * K..x1 * K].iter_mut().zip(src) {
-            *o += wgt * v;
+    }
+    // The border columns, whose windows reach past the row's ends.
+    for x in (0..interior.start).chain(interior.end..w) {
+        for j in 0..K {
+            let mut acc = 0.0;
+            for (t, &wgt) in g.iter().enumerate() {
+                if let Some(src) = (x + t).checked_sub(RADIUS).filter(|&src| src < w) {
+                    acc += wgt * row[src * K + j];
+                }
+            }
+            out[x * K + j] = acc;
         }
     }
 }
@@ -190,13 +211,25 @@ impl<const K: usize> RowStream<K> {
                 next += 1;
             }
             let out = self.output.as_flattened_mut();
-            out.fill(0.0);
-            for q in lo..=hi {
-                let wgt = g[q + RADIUS - y];
-                let slot = q % WIN * w;
-                let src = self.ring[slot..slot + w].as_flattened();
-                for (o, v) in out.iter_mut().zip(src) {
-                    *o += wgt * v;
+            let ring_row = |q: usize| self.ring[q % WIN * w..(q % WIN + 1) * w].as_flattened();
+            if hi - lo + 1 == WIN {
+                // A full window: each output sums its eleven rows in a register.
+                let rows: [&[f32]; WIN] = std::array::from_fn(|t| ring_row(lo + t));
+                for (i, o) in out.iter_mut().enumerate() {
+                    let mut acc = 0.0;
+                    for t in 0..WIN {
+                        acc += g[t] * rows[t][i];
+                    }
+                    *o = acc;
+                }
+            } else {
+                // Near the top or bottom: one pass per in-image row, in the same order.
+                out.fill(0.0);
+                for q in lo..=hi {
+                    let wgt = g[q + RADIUS - y];
+                    for (o, v) in out.iter_mut().zip(ring_row(q)) {
+                        *o += wgt * v;
+                    }
                 }
             }
             consume(y, &self.output);
