@@ -303,13 +303,15 @@ fn row_spans(spans: &mut RowSpans, sp: &Packed, origin: (usize, usize), (x0, x1)
     let [_, b, c] = sp.conic;
     let log2e = std::f32::consts::LOG2_E;
     let (qb, qc) = (-b * log2e, -0.5 * c * log2e);
+    // Pixel centres are at integer + 0.5 (integers are exact in f32).
+    for (x, dx) in spans.dx.iter_mut().enumerate() {
+        *dx = (origin_x + x as f32) + 0.5 - sp.mean[0];
+    }
     for y in 0..TILE {
-        // Pixel centres are at integer + 0.5 (integers are exact in f32).
         let dy = (origin_y + y as f32) + 0.5 - sp.mean[1];
         spans.dy[y] = dy;
         spans.linear[y] = qb * dy;
         spans.constant[y] = qc * dy * dy;
-        spans.dx[y] = (origin_x + y as f32) + 0.5 - sp.mean[0];
         let q = s0 - s1 * dy * dy;
         let half = q.max(0.0).sqrt();
         // Tile-local column of dx = 0 (pixel x has its centre at x + 0.5).
@@ -318,25 +320,18 @@ fn row_spans(spans: &mut RowSpans, sp: &Packed, origin: (usize, usize), (x0, x1)
         let lo = ((centre - half).floor() - 1.0).max(x0f).min(x1f);
         let hi = ((centre + half).ceil() + 2.0).min(x1f).max(lo);
         let hi = if q < 0.0 { lo } else { hi };
-        spans.lo_column[y] = lo;
-        spans.hi_column[y] = hi;
-        // SAFETY: lo and hi are finite and in [0, 16].
-        unsafe {
-            spans.lo[y] = lo.to_int_unchecked::<u32>();
-            spans.hi[y] = hi.to_int_unchecked::<u32>();
-        }
+        spans.lo[y] = lo;
+        spans.hi[y] = hi;
     }
 }
 
-/// Column spans [lo, hi) per tile row (see [`row_spans`]), as integers for [`RowSpans::groups`]
-/// and as floats for the pixel loops' compares, and the terms of the splat's exponent per row
-/// and per column. The extra row, always empty, is the one of the idle slot ([`IDLE`]).
+/// Column spans [lo, hi) per tile row (see [`row_spans`]), whole numbers in [0, 16] held as
+/// floats for the pixel loops' compares, and the terms of the splat's exponent per row and per
+/// column. The extra row, always empty, is the one of the idle slot ([`IDLE`]).
 #[derive(Default)]
 struct RowSpans {
-    lo: [u32; TILE + 1],
-    hi: [u32; TILE + 1],
-    lo_column: [f32; TILE + 1],
-    hi_column: [f32; TILE + 1],
+    lo: [f32; TILE + 1],
+    hi: [f32; TILE + 1],
     /// Per row: dy, qb·dy and qc·dy² (see [`row_spans`]).
     dy: [f32; TILE + 1],
     linear: [f32; TILE + 1],
@@ -367,8 +362,8 @@ impl RowSpans {
         for y in 0..TILE {
             let (lo, hi) = (self.lo[y], self.hi[y]);
             let row = (y >= y0) & (y < y1) & (lo < hi);
-            let first = row & (lo < LANES as u32);
-            let second = row & (hi > LANES as u32);
+            let first = row & (lo < LANES as f32);
+            let second = row & (hi > LANES as f32);
             bits |= ((first as GroupBits) | (second as GroupBits) << 1) << (2 * y);
         }
         bits
@@ -450,8 +445,8 @@ fn falloff_pair<const FUSED: bool>(sp: &Packed, spans: &RowSpans, pair: Pair) ->
             spans.dy[y],
             spans.linear[y],
             spans.constant[y],
-            spans.lo_column[y],
-            spans.hi_column[y],
+            spans.lo[y],
+            spans.hi[y],
         );
         columns[half] = COLUMNS[start..start + LANES].try_into().unwrap();
         column_dx[half] = spans.dx[start..start + LANES].try_into().unwrap();
