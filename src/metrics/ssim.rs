@@ -149,8 +149,7 @@ fn blur_row<const K: usize>(row: &[[f32; K]], out: &mut [[f32; K]], g: &[f32; WI
     let w = row.len();
     let (out, row) = (out.as_flattened_mut(), row.as_flattened());
     // Columns whose window lies inside the row: in the flattened K-vectors, tap t of output
-    // value i is input value i − R·K + t·K, so each output is eleven loads and multiply-adds
-    // kept in a register, and consecutive outputs vectorise.
+    // value i is input value i − R·K + t·K.
     let interior = if w > 2 * RADIUS {
         RADIUS..w - RADIUS
     } else {
@@ -158,17 +157,12 @@ fn blur_row<const K: usize>(row: &[[f32; K]], out: &mut [[f32; K]], g: &[f32; WI
     };
     let n = interior.len() * K;
     if n > 0 {
-        let taps: [&[f32]; WIN] = std::array::from_fn(|t| &row[t * K..t * K + n]);
-        for (i, o) in out[interior.start * K..interior.start * K + n]
-            .iter_mut()
-            .enumerate()
-        {
-            let mut acc = 0.0;
-            for t in 0..WIN {
-                acc += g[t] * taps[t][i];
-            }
-            *o = acc;
-        }
+        let taps = std::array::from_fn(|t| &row[t * K..t * K + n]);
+        sum_of_taps(
+            &mut out[interior.start * K..interior.start * K + n],
+            &taps,
+            g,
+        );
     }
     // The border columns, whose windows reach past the row's ends.
     for x in (0..interior.start).chain(interior.end..w) {
@@ -181,6 +175,19 @@ fn blur_row<const K: usize>(row: &[[f32; K]], out: &mut [[f32; K]], g: &[f32; WI
             }
             out[x * K + j] = acc;
         }
+    }
+}
+
+/// out[i] = Σ_t g[t]·taps[t][i], the taps summed in order in a register (each slice at least
+/// as long as `out`); consecutive outputs vectorise.
+#[inline(always)]
+fn sum_of_taps(out: &mut [f32], taps: &[&[f32]; WIN], g: &[f32; WIN]) {
+    for (i, o) in out.iter_mut().enumerate() {
+        let mut acc = 0.0;
+        for t in 0..WIN {
+            acc += g[t] * taps[t][i];
+        }
+        *o = acc;
     }
 }
 
@@ -214,14 +221,8 @@ impl<const K: usize> RowStream<K> {
             let ring_row = |q: usize| self.ring[q % WIN * w..(q % WIN + 1) * w].as_flattened();
             if hi - lo + 1 == WIN {
                 // A full window: each output sums its eleven rows in a register.
-                let rows: [&[f32]; WIN] = std::array::from_fn(|t| ring_row(lo + t));
-                for (i, o) in out.iter_mut().enumerate() {
-                    let mut acc = 0.0;
-                    for t in 0..WIN {
-                        acc += g[t] * rows[t][i];
-                    }
-                    *o = acc;
-                }
+                let rows = std::array::from_fn(|t| ring_row(lo + t));
+                sum_of_taps(out, &rows, g);
             } else {
                 // Near the top or bottom: one pass per in-image row, in the same order.
                 out.fill(0.0);
