@@ -513,7 +513,7 @@ pub fn cli(args: &BenchArgs) -> anyhow::Result<()> {
     println!(
         "CPU: {} threads, SIMD level: {}",
         rayon::current_num_threads(),
-        crate::raster::simd_level()
+        crate::raster::simd_level().name()
     );
     for &n in &args.gaussians {
         for &(w, h) in &sizes {

@@ -163,9 +163,9 @@ simd_kernel! {
             for (r, &count) in group_contributors.iter().enumerate() {
                 walking |= (((k as u32) < count) as GroupBits) << r;
             }
-            for pair in Pairs(spans.groups(y0, y1) & walking) {
-                let falloff = falloff_pair::<FUSED>(sp, &spans, pair);
-                backward_lanes::<FUSED>(sp, &mut st, pair, k as u32, falloff, &mut acc);
+            for pair in Pairs::<WIDE>(spans.groups(y0, y1) & walking) {
+                let falloff = falloff_pair::<FUSED, WIDE>(sp, &spans, pair);
+                backward_lanes::<FUSED, WIDE>(sp, &mut st, pair, k as u32, falloff, &mut acc);
             }
             let [sx, sy, sxx, sxy, syy, opacity, r, g, b] = acc.map(F16::sum);
             // power = −½(a·dx² + c·dy²) − b·dx·dy, and dx = x − mean.x: dpower/dmean.x = a·dx + b·dy.
@@ -185,10 +185,10 @@ simd_kernel! {
 /// moments p·dx, p·dy, p·dx², p·dx·dy, p·dy² (the splat's mean and conic gradients are fixed
 /// combinations of their sums), then dL/dopacity and dL/d(r, g, b).
 #[inline(always)]
-fn backward_lanes<const FUSED: bool>(
+fn backward_lanes<const FUSED: bool, const WIDE: bool>(
     sp: &Packed,
     st: &mut PixelState,
-    pair: Pair,
+    pair: Pair<WIDE>,
     k: u32,
     Falloff { dx, dy, gauss: g }: Falloff,
     acc: &mut [F16; 9],

@@ -172,8 +172,8 @@ simd_kernel! {
             let contributor = k as u32 + 1;
             let opacity = F16::splat(sp.opacity);
             let splat_color = sp.color.map(F16::splat);
-            for pair in Pairs(spans.groups(y0, y1) & live_groups) {
-                let g = falloff_pair::<FUSED>(sp, &spans, pair).gauss;
+            for pair in Pairs::<WIDE>(spans.groups(y0, y1) & live_groups) {
+                let g = falloff_pair::<FUSED, WIDE>(sp, &spans, pair).gauss;
                 // Whole-register selects, never per-lane conditional stores (masked
                 // stores are slow on some CPUs).
                 let raw = opacity * g;

@@ -8,8 +8,8 @@
 //!
 //! Speed: tiles run in parallel (rayon); inside a tile the pixel loops work on whole 16-pixel
 //! rows with branch-free selects so that the compiler vectorises them, and they are compiled
-//! twice, for the baseline x86-64 target and for AVX2, with the choice made at run time
-//! ([`simd_level`]). Every buffer is reused across calls.
+//! three times, for the baseline x86-64 target, for AVX2 and for AVX-512, with the choice made
+//! at run time ([`simd_level`]). Every buffer is reused across calls.
 
 mod backward;
 mod binning;
@@ -279,7 +279,8 @@ fn pick(keep: bool, a: f32, b: f32) -> f32 {
     if keep { a } else { b }
 }
 
-/// Pixels per lane group: a tile row is two groups, one AVX2 register each.
+/// Pixels per lane group: a tile row is two groups, one AVX2 register each (one AVX-512
+/// register holds a row).
 const LANES: usize = 8;
 /// Lane groups per tile.
 const GROUPS: usize = TILE_PIXELS / LANES;
@@ -372,41 +373,61 @@ impl RowSpans {
 
 /// Two lane groups worked on together, as one 16-lane vector: two independent chains of
 /// arithmetic keep the CPU busy while each waits on the latency of the other (the exponential
-/// alone is a chain of a dozen dependent steps).
+/// alone is a chain of a dozen dependent steps). With `WIDE` (kernels whose registers hold all
+/// sixteen lanes) the two groups are always the two halves of one tile row, which lie side by
+/// side in the state arrays, so the pair loads and stores as one register.
 #[derive(Clone, Copy)]
-struct Pair([usize; 2]);
+struct Pair<const WIDE: bool>([usize; 2]);
 
-impl Pair {
+impl<const WIDE: bool> Pair<WIDE> {
     /// The two groups' lanes of a per-group state array, side by side.
     #[inline(always)]
     fn get<T: Copy + Default>(self, state: &[[T; LANES]; SLOTS]) -> [T; PAIR] {
         let mut out = [T::default(); PAIR];
-        out[..LANES].copy_from_slice(&state[self.0[0]]);
-        out[LANES..].copy_from_slice(&state[self.0[1]]);
+        if WIDE {
+            let first = self.0[0] * LANES;
+            out.copy_from_slice(&state.as_flattened()[first..first + PAIR]);
+        } else {
+            out[..LANES].copy_from_slice(&state[self.0[0]]);
+            out[LANES..].copy_from_slice(&state[self.0[1]]);
+        }
         out
     }
 
     /// Writes `value` back into the two groups' lanes of `state`.
     #[inline(always)]
     fn set<T: Copy>(self, state: &mut [[T; LANES]; SLOTS], value: [T; PAIR]) {
-        state[self.0[0]].copy_from_slice(&value[..LANES]);
-        state[self.0[1]].copy_from_slice(&value[LANES..]);
+        if WIDE {
+            let first = self.0[0] * LANES;
+            state.as_flattened_mut()[first..first + PAIR].copy_from_slice(&value);
+        } else {
+            state[self.0[0]].copy_from_slice(&value[..LANES]);
+            state[self.0[1]].copy_from_slice(&value[LANES..]);
+        }
     }
 }
 
 /// The groups in a [`GroupBits`] set, lowest first, two at a time; an odd one out is paired
-/// with [`IDLE`]. An iterator rather than a closure: a closure is a function of its own that
-/// may stay out of line, and then it would not get the AVX2 code of the kernel that calls it.
-struct Pairs(GroupBits);
+/// with [`IDLE`]. With `WIDE`, whole tile rows instead: every row with a group in the set, as
+/// the pair of its two groups (the lanes of the group not in the set draw nothing, as the row
+/// span leaves them out). An iterator rather than a closure: a closure is a function of its
+/// own that may stay out of line, and then it would not get the vector code of the kernel
+/// that calls it.
+struct Pairs<const WIDE: bool>(GroupBits);
 
-impl Iterator for Pairs {
-    type Item = Pair;
+impl<const WIDE: bool> Iterator for Pairs<WIDE> {
+    type Item = Pair<WIDE>;
 
     #[inline(always)]
-    fn next(&mut self) -> Option<Pair> {
+    fn next(&mut self) -> Option<Pair<WIDE>> {
         let bits = self.0;
         if bits == 0 {
             return None;
+        }
+        if WIDE {
+            let first = bits.trailing_zeros() as usize & !1;
+            self.0 = bits & !(0b11 << first);
+            return Some(Pair([first, first + 1]));
         }
         let first = bits.trailing_zeros() as usize;
         let rest = bits & (bits - 1);
@@ -432,34 +453,38 @@ struct Falloff {
 }
 
 #[inline(always)]
-fn falloff_pair<const FUSED: bool>(sp: &Packed, spans: &RowSpans, pair: Pair) -> Falloff {
+fn falloff_pair<const FUSED: bool, const WIDE: bool>(
+    sp: &Packed,
+    spans: &RowSpans,
+    pair: Pair<WIDE>,
+) -> Falloff {
     let (mut dx, mut dy, mut gauss) = ([0f32; PAIR], [0f32; PAIR], [0f32; PAIR]);
     let qa = -0.5 * sp.conic[0] * std::f32::consts::LOG2_E;
-    // Per half: the row's terms, and its columns and their offsets.
-    let mut row = [(0f32, 0f32, 0f32, 0f32, 0f32); 2];
-    let mut columns = [[0f32; LANES]; 2];
-    let mut column_dx = [[0f32; LANES]; 2];
-    for (half, &r) in pair.0.iter().enumerate() {
-        let (y, start) = (r / 2, (r % 2) * LANES);
-        row[half] = (
-            spans.dy[y],
-            spans.linear[y],
-            spans.constant[y],
-            spans.lo[y],
-            spans.hi[y],
-        );
-        columns[half] = COLUMNS[start..start + LANES].try_into().unwrap();
-        column_dx[half] = spans.dx[start..start + LANES].try_into().unwrap();
+    // Per lane: its row's terms, its column and its offset. Each half is filled by a loop of
+    // its own from scalars (broadcasts): indexing the halves inside the lane loop would make
+    // the wide kernels gather.
+    let (mut linear, mut constant) = ([0f32; PAIR], [0f32; PAIR]);
+    let (mut lo, mut hi, mut columns) = ([0f32; PAIR], [0f32; PAIR], [0f32; PAIR]);
+    let halves = if WIDE {
+        // One tile row: the same row terms, sixteen consecutive columns.
+        [(pair.0[0] / 2, 0), (pair.0[0] / 2, LANES)]
+    } else {
+        pair.0.map(|r| (r / 2, (r % 2) * LANES))
+    };
+    for (half, (y, start)) in halves.into_iter().enumerate() {
+        let lanes = half * LANES..(half + 1) * LANES;
+        dy[lanes.clone()].fill(spans.dy[y]);
+        linear[lanes.clone()].fill(spans.linear[y]);
+        constant[lanes.clone()].fill(spans.constant[y]);
+        lo[lanes.clone()].fill(spans.lo[y]);
+        hi[lanes.clone()].fill(spans.hi[y]);
+        columns[lanes.clone()].copy_from_slice(&COLUMNS[start..start + LANES]);
+        dx[lanes].copy_from_slice(&spans.dx[start..start + LANES]);
     }
     for i in 0..PAIR {
-        let (half, lane) = (i / LANES, i % LANES);
-        let (row_dy, linear, constant, lo, hi) = row[half];
-        dx[i] = column_dx[half][lane];
-        dy[i] = row_dy;
-        let e2 = mul_add::<FUSED>(mul_add::<FUSED>(qa, dx[i], linear), dx[i], constant);
+        let e2 = mul_add::<FUSED>(mul_add::<FUSED>(qa, dx[i], linear[i]), dx[i], constant[i]);
         let g = exp2_falloff::<FUSED>(e2);
-        let column = columns[half][lane];
-        let in_span = column >= lo && column < hi;
+        let in_span = columns[i] >= lo[i] && columns[i] < hi[i];
         // Below `min_exp2` alpha < 1/255; a positive exponent is numerical noise.
         let drawn = in_span & !(e2 > 0.0) & !(e2 < sp.min_exp2) & (sp.opacity * g >= ALPHA_MIN);
         gauss[i] = pick(drawn, g, 0.0);
@@ -486,8 +511,8 @@ const COLUMNS: [f32; TILE] = {
 const PAIR: usize = 2 * LANES;
 
 /// Sixteen f32 lanes with element-wise arithmetic written as plain loops, which the compiler
-/// turns into two vector instructions each (two AVX2 registers, or four SSE ones). Long chains
-/// of array code are not always vectorised; these small steps always are.
+/// turns into one to four vector instructions each (one AVX-512 register, two AVX2 or four SSE
+/// ones). Long chains of array code are not always vectorised; these small steps always are.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(transparent)]
 struct F16([f32; PAIR]);
@@ -611,57 +636,106 @@ impl M16 {
     }
 }
 
-/// Defines a pixel-loop function compiled twice, for AVX2 + FMA and for the baseline target,
-/// that runs the AVX2 version when the CPU has it ([`has_avx2`]).
+/// Defines a pixel-loop function compiled three times, for AVX-512, for AVX2 + FMA and for the
+/// baseline target, that runs the best version this CPU has ([`simd_level`]). The body gets two
+/// constants: `FUSED`, whether it may use fused multiply-adds (see [`mul_add`]), and `WIDE`,
+/// whether its vector registers hold sixteen lanes (a whole tile row, see [`Pair`]).
 macro_rules! simd_kernel {
     ($(#[$meta:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$meta])*
         #[allow(clippy::too_many_arguments)]
         fn $name($($arg: $ty),*) {
-            // `FUSED`: whether the body may use fused multiply-adds (see [`mul_add`]).
             #[inline(always)]
             #[allow(clippy::too_many_arguments)]
-            fn body<const FUSED: bool>($($arg: $ty),*) $body
+            fn body<const FUSED: bool, const WIDE: bool>($($arg: $ty),*) $body
 
             #[cfg(target_arch = "x86_64")]
             {
+                use $crate::raster::SimdLevel;
+                #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq,avx2,fma")]
+                #[allow(clippy::too_many_arguments)]
+                fn avx512($($arg: $ty),*) {
+                    body::<true, true>($($arg),*)
+                }
                 #[target_feature(enable = "avx2,fma")]
                 #[allow(clippy::too_many_arguments)]
                 fn avx2($($arg: $ty),*) {
-                    body::<true>($($arg),*)
+                    body::<true, false>($($arg),*)
                 }
-                if $crate::raster::has_avx2() {
-                    // SAFETY: the CPU supports AVX2 and FMA (checked at run time).
-                    return unsafe { avx2($($arg),*) };
+                match $crate::raster::simd_level() {
+                    // SAFETY: the CPU supports these features (checked at run time).
+                    SimdLevel::Avx512 => return unsafe { avx512($($arg),*) },
+                    // SAFETY: as above.
+                    SimdLevel::Avx2 => return unsafe { avx2($($arg),*) },
+                    SimdLevel::Baseline => {}
                 }
             }
-            body::<false>($($arg),*)
+            body::<false, false>($($arg),*)
         }
     };
 }
 pub(crate) use simd_kernel;
 
-/// Whether the pixel loops run their AVX2 versions: when this CPU has AVX2 and FMA, unless
-/// `TADGS_SIMD=baseline` asks for the baseline ones (to compare them). Decided once.
-#[inline]
-pub(crate) fn has_avx2() -> bool {
-    static AVX2: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *AVX2.get_or_init(|| {
-        #[cfg(target_arch = "x86_64")]
-        let detected = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
-        #[cfg(not(target_arch = "x86_64"))]
-        let detected = false;
-        detected && std::env::var("TADGS_SIMD").as_deref() != Ok("baseline")
-    })
+/// The instruction sets the pixel loops are compiled for, chosen at run time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum SimdLevel {
+    /// The baseline x86-64 target (SSE2), or any other architecture.
+    Baseline,
+    /// AVX2 with fused multiply-adds: eight lanes per register.
+    Avx2,
+    /// AVX-512 (F, VL, BW, DQ) with fused multiply-adds: sixteen lanes per register.
+    Avx512,
 }
 
-/// The instruction set the pixel loops run with on this CPU (chosen at run time).
-pub fn simd_level() -> &'static str {
-    if has_avx2() {
-        "x86-64 AVX2 + FMA"
-    } else {
-        "baseline"
+impl SimdLevel {
+    /// The best level this CPU supports.
+    pub fn detected() -> SimdLevel {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let avx2 = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+            let avx512 = is_x86_feature_detected!("avx512f")
+                && is_x86_feature_detected!("avx512vl")
+                && is_x86_feature_detected!("avx512bw")
+                && is_x86_feature_detected!("avx512dq");
+            if avx2 && avx512 {
+                return SimdLevel::Avx512;
+            }
+            if avx2 {
+                return SimdLevel::Avx2;
+            }
+        }
+        SimdLevel::Baseline
     }
+
+    /// The level `TADGS_SIMD` asks for (`baseline`, `avx2` or `avx512`), if it names one.
+    pub fn requested() -> Option<SimdLevel> {
+        match std::env::var("TADGS_SIMD").ok()?.as_str() {
+            "baseline" => Some(SimdLevel::Baseline),
+            "avx2" => Some(SimdLevel::Avx2),
+            "avx512" => Some(SimdLevel::Avx512),
+            _ => None,
+        }
+    }
+
+    /// How the level is shown in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            SimdLevel::Baseline => "baseline",
+            SimdLevel::Avx2 => "x86-64 AVX2 + FMA",
+            SimdLevel::Avx512 => "x86-64 AVX-512 + FMA",
+        }
+    }
+}
+
+/// The level the pixel loops run at: the best this CPU has, or a lower one that `TADGS_SIMD`
+/// asks for (to compare them; a level the CPU lacks is never chosen). Decided once.
+#[inline]
+pub fn simd_level() -> SimdLevel {
+    static LEVEL: std::sync::OnceLock<SimdLevel> = std::sync::OnceLock::new();
+    *LEVEL.get_or_init(|| {
+        let detected = SimdLevel::detected();
+        SimdLevel::requested().map_or(detected, |requested| requested.min(detected))
+    })
 }
 
 #[cfg(test)]

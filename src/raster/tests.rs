@@ -467,44 +467,63 @@ fn reused_rasterizer_backward_equals_fresh_one() {
     assert_eq!(grads, expected);
 }
 
-/// The kernels follow the CPU: the AVX2 ones exactly where it has AVX2 and FMA, unless
-/// `TADGS_SIMD=baseline` asks for the baseline ones (as in the child process of
-/// [`baseline_kernels_match_the_reference`]).
+/// The kernels follow the CPU: the best level it has (AVX-512 where it has AVX-512 F, VL, BW
+/// and DQ besides AVX2 and FMA; AVX2 where it has AVX2 and FMA), unless `TADGS_SIMD` asks for a
+/// lower one (as in the child processes of [`lower_level_kernels_match_the_reference`]).
 #[test]
 fn simd_level_follows_the_environment() {
     #[cfg(target_arch = "x86_64")]
-    let detected = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+    let (avx2, avx512) = (
+        is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"),
+        is_x86_feature_detected!("avx512f")
+            && is_x86_feature_detected!("avx512vl")
+            && is_x86_feature_detected!("avx512bw")
+            && is_x86_feature_detected!("avx512dq"),
+    );
     #[cfg(not(target_arch = "x86_64"))]
-    let detected = false;
-    let forced = std::env::var("TADGS_SIMD").as_deref() == Ok("baseline");
-    let expected = if detected && !forced {
-        "x86-64 AVX2 + FMA"
-    } else {
-        "baseline"
+    let (avx2, avx512) = (false, false);
+    let best = match (avx2, avx512) {
+        (true, true) => "x86-64 AVX-512 + FMA",
+        (true, false) => "x86-64 AVX2 + FMA",
+        _ => "baseline",
     };
-    assert_eq!(simd_level(), expected);
+    let expected = match std::env::var("TADGS_SIMD").as_deref() {
+        Ok("baseline") => "baseline",
+        Ok("avx2") if avx2 => "x86-64 AVX2 + FMA",
+        _ => best,
+    };
+    assert_eq!(simd_level().name(), expected);
 }
 
-/// The baseline kernels (no AVX2, no fused multiply-adds) pass the reference and
-/// finite-difference tests too. The kernel choice is made once per process, so those tests
-/// run again in a child process of this test binary with `TADGS_SIMD=baseline`.
+/// The kernels of every level below the one this CPU runs (the baseline ones without AVX2 or
+/// fused multiply-adds, and the AVX2 ones where the CPU has AVX-512) pass the reference and
+/// finite-difference tests of the rasterizer and the SSIM too. The kernel choice is made once
+/// per process, so those tests run again in child processes of this test binary with
+/// `TADGS_SIMD` set.
 #[test]
-fn baseline_kernels_match_the_reference() {
+fn lower_level_kernels_match_the_reference() {
     let tests = [
         "raster::tests::simd_level_follows_the_environment",
         "raster::tests::tiled_rasterizer_matches_per_pixel_reference",
         "raster::tests::backward_matches_finite_differences",
+        "metrics::ssim::tests::matches_direct_reference",
+        "metrics::ssim::tests::gradient_matches_finite_differences",
+        "metrics::ssim::tests::gradient_matches_finite_differences_small_image",
     ];
-    let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(tests)
-        .args(["--exact", "--test-threads", "1"])
-        .env("TADGS_SIMD", "baseline")
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "baseline run failed:\n{stdout}");
-    assert!(
-        stdout.contains("3 passed"),
-        "expected 3 tests to run:\n{stdout}"
-    );
+    let lower = [("baseline", SimdLevel::Baseline), ("avx2", SimdLevel::Avx2)];
+    for (name, level) in lower.into_iter().filter(|&(_, l)| l < simd_level()) {
+        let out = std::process::Command::new(std::env::current_exe().unwrap())
+            .args(tests)
+            .args(["--exact", "--test-threads", "1"])
+            .env("TADGS_SIMD", name)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{level:?} run failed:\n{stdout}");
+        assert!(
+            stdout.contains(&format!("{} passed", tests.len())),
+            "expected {} tests to run at {level:?}:\n{stdout}",
+            tests.len()
+        );
+    }
 }
