@@ -22,7 +22,7 @@ use std::mem::size_of;
 use crate::components::{Deformed, gaussian_bytes};
 use crate::data::Dataset;
 use crate::data::init::anchor_frames;
-use crate::raster::{PACKED_SPLAT_BYTES, Splat, SplatGrad};
+use crate::raster::{PACKED_SPLAT_BYTES, REDUCE_BANDS, Splat, SplatGrad};
 use crate::resources::DeformedGrad;
 use crate::scene::SceneConfig;
 
@@ -42,18 +42,19 @@ pub const HEADROOM: f64 = 1.25;
 pub fn bytes_per_gaussian(sh_degree: u32) -> usize {
     // ECS storage: the components plus the entity id in its table and its location record.
     let ecs = gaussian_bytes(sh_degree) + 8 + 16;
-    // Splatting arrays indexed by slot: deformed values, splat, packed splat, gradients, NDC
-    // gradient norm, tile rectangle, entry offset, depth key and depth-ordered binning record.
+    // Splatting arrays indexed by slot: deformed values, splat, packed splat, gradients and
+    // the backward's per-band sums of them, NDC gradient norm, tile rectangle, entry offset,
+    // depth key and its radix-sort buffer, and depth-ordered binning record.
     let slots = size_of::<Deformed>()
         + size_of::<Splat>()
         + PACKED_SPLAT_BYTES
-        + size_of::<SplatGrad>()
+        + (1 + REDUCE_BANDS) * size_of::<SplatGrad>()
         + size_of::<DeformedGrad>()
         + 4
         + 16
         + 4
-        + 8
-        + 24;
+        + 2 * 8
+        + 20;
     // Per (tile, Gaussian) entry: sorted index, position and gradient partial sum (an upper
     // bound: only the entries the backward walks get one).
     let entries = TILES_PER_GAUSSIAN * (4 + 4 + size_of::<SplatGrad>());

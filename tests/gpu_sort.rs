@@ -208,7 +208,8 @@ fn gpu_binning_equals_cpu_bins() {
             "{case}: splat offsets"
         );
         assert_eq!(
-            out.sorted_position, cpu.sorted_position,
+            out.sorted_position,
+            cpu.sorted_position(),
             "{case}: sorted positions"
         );
     }
@@ -259,6 +260,6 @@ fn two_dimensional_dispatches_give_the_same_results() {
     assert_eq!(bins.tile_offsets, cpu.tile_offsets);
     assert_eq!(bins.sorted_splats, cpu.sorted_splats);
     assert_eq!(bins.splat_offsets, cpu.splat_offsets());
-    assert_eq!(bins.sorted_position, cpu.sorted_position);
+    assert_eq!(bins.sorted_position, cpu.sorted_position());
     tadgs::gpu::set_max_dispatch_width(65_535);
 }

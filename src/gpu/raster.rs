@@ -322,7 +322,7 @@ impl GpuRasterizer {
             self.splat_offsets
                 .upload(&self.gpu, self.bins.splat_offsets());
             self.sorted_position
-                .upload(&self.gpu, &self.bins.sorted_position);
+                .upload(&self.gpu, self.bins.sorted_position());
         }
         let grad_bytes = (self.count * FIELDS * 4) as u64;
         self.staging.reserve(&self.gpu.device, grad_bytes);

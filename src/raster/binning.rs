@@ -19,13 +19,20 @@ pub struct TileBins {
     pub sorted_splats: Vec<u32>,
     /// Splats that cover a tile, sorted by key: depth bits (high) and splat index (low).
     sorted_keys: Vec<u64>,
+    /// The other buffer of the radix sort of `sorted_keys`.
+    sort_scratch: Vec<u64>,
     /// What the scatter needs of each splat of `sorted_keys`, in the same (depth) order.
     by_depth: Vec<DepthOrdered>,
-    /// Position in the sorted order of each unsorted entry (splat-major order).
-    pub sorted_position: Vec<u32>,
+    /// Position in the sorted order of each unsorted entry (splat-major order), filled on
+    /// demand by [`TileBins::sorted_position`]: the CPU rasterizer does not need it.
+    sorted_position: Vec<u32>,
+    /// Whether `sorted_position` belongs to the current bins.
+    positions_filled: bool,
     /// Tile t owns sorted entries `tile_offsets[t]..tile_offsets[t+1]`.
     pub tile_offsets: Vec<u32>,
     tile_fill: Vec<u32>,
+    /// The 2-D difference array of the tile rectangles, (tiles_y + 1) × (tiles_x + 1).
+    rect_corners: Vec<i32>,
 }
 
 impl TileBins {
@@ -41,8 +48,9 @@ impl TileBins {
             + self.sorted_splats.capacity()
             + self.sorted_position.capacity()
             + self.tile_offsets.capacity()
-            + self.tile_fill.capacity())
-            + 8 * self.sorted_keys.capacity()
+            + self.tile_fill.capacity()
+            + self.rect_corners.capacity())
+            + 8 * (self.sorted_keys.capacity() + self.sort_scratch.capacity())
             + std::mem::size_of::<DepthOrdered>() * self.by_depth.capacity()
     }
 
@@ -71,13 +79,20 @@ impl TileBins {
         self.tiles_y = height.div_ceil(TILE);
         let tile_count = self.tiles_x * self.tiles_y;
         let (tiles_x, tiles_y) = (self.tiles_x as f32, self.tiles_y as f32);
+        self.positions_filled = false;
 
         splats
             .par_iter()
             .map(|s| tile_rect(s, tiles_x, tiles_y))
             .collect_into_vec(&mut self.rects);
 
-        // Entries per splat (splat-major order).
+        // Entries per splat (splat-major order), and per tile from a 2-D difference array of
+        // the rectangles: +1 at the corners (x0, y0) and (x1, y1), −1 at (x1, y0) and (x0, y1),
+        // then prefix sums along rows and columns. That costs a few additions per splat instead
+        // of one per entry.
+        let stride = self.tiles_x + 1;
+        self.rect_corners.clear();
+        self.rect_corners.resize(stride * (self.tiles_y + 1), 0);
         self.splat_offsets.clear();
         self.splat_offsets.reserve(splats.len() + 1);
         self.splat_offsets.push(0);
@@ -85,29 +100,29 @@ impl TileBins {
         for r in &self.rects {
             total += (r[2] - r[0]) * (r[3] - r[1]);
             self.splat_offsets.push(total);
+            let [x0, y0, x1, y1] = r.map(|v| v as usize);
+            self.rect_corners[y0 * stride + x0] += 1;
+            self.rect_corners[y0 * stride + x1] -= 1;
+            self.rect_corners[y1 * stride + x0] -= 1;
+            self.rect_corners[y1 * stride + x1] += 1;
         }
-
-        // Entries per tile. Tile rows are split into bands, one task each; a band counts and
-        // later fills only its own tiles, so the bands never write the same place.
-        // At least 1: an image without tiles (zero width or height) has no chunks anyway.
-        let tiles_per_band = (self.tiles_x * self.tiles_y.div_ceil(band_count())).max(1);
-        let (tiles_x, rects) = (self.tiles_x, &self.rects);
+        // Invisible splats have empty rectangles at the origin: their four updates cancel.
         self.tile_fill.clear();
         self.tile_fill.resize(tile_count + 1, 0);
-        self.tile_fill[1..]
-            .par_chunks_mut(tiles_per_band)
-            .enumerate()
-            .for_each(|(band, counts)| {
-                let rows = band_rows(band, tiles_per_band, counts.len(), tiles_x);
-                for r in rects {
-                    for ty in r[1].max(rows.start)..r[3].min(rows.end) {
-                        let row = (ty - rows.start) as usize * tiles_x;
-                        for tx in r[0]..r[2] {
-                            counts[row + tx as usize] += 1;
-                        }
-                    }
-                }
-            });
+        let counts = &mut self.tile_fill[1..];
+        for ty in 0..self.tiles_y {
+            let mut row_sum = 0i32;
+            for tx in 0..self.tiles_x {
+                let tile = ty * self.tiles_x + tx;
+                row_sum += self.rect_corners[ty * stride + tx];
+                let above = if ty > 0 {
+                    counts[tile - self.tiles_x]
+                } else {
+                    0
+                };
+                counts[tile] = above.wrapping_add_signed(row_sum);
+            }
+        }
         for t in 0..tile_count {
             self.tile_fill[t + 1] += self.tile_fill[t];
         }
@@ -124,57 +139,137 @@ impl TileBins {
                 .filter(|(_, r)| r[2] > r[0])
                 .map(|(s, _)| ((splats[s].depth.to_bits() as u64) << 32) | s as u64),
         );
-        self.sorted_keys.par_sort_unstable();
+        radix_sort_by_high_half(&mut self.sorted_keys, &mut self.sort_scratch);
 
         // Each band scans every splat in depth order: gather what it reads of them once, so
         // that the bands read one array front to back instead of jumping around two.
-        let (rects, splat_offsets) = (&self.rects, &self.splat_offsets);
+        let rects = &self.rects;
         self.sorted_keys
             .par_iter()
             .map(|&key| {
                 let s = key as u32;
                 DepthOrdered {
                     splat: s,
-                    first_entry: splat_offsets[s as usize],
                     rect: rects[s as usize],
                 }
             })
             .collect_into_vec(&mut self.by_depth);
 
         // Scatter in depth order, band by band in parallel.
-        let total = total as usize;
-        self.sorted_splats.resize(total, 0);
-        self.sorted_position.resize(total, 0);
+        self.sorted_splats.resize(total as usize, 0);
         let sorted_splats = Disjoint(self.sorted_splats.as_mut_ptr());
-        let sorted_position = Disjoint(self.sorted_position.as_mut_ptr());
-        let by_depth = &self.by_depth;
-        self.tile_fill[..tile_count]
-            .par_chunks_mut(tiles_per_band)
-            .enumerate()
-            .for_each(|(band, fill)| {
-                let rows = band_rows(band, tiles_per_band, fill.len(), tiles_x);
-                for d in by_depth {
-                    let r = d.rect;
-                    let rect_width = (r[2] - r[0]) as usize;
-                    for ty in r[1].max(rows.start)..r[3].min(rows.end) {
-                        let mut entry = d.first_entry as usize + (ty - r[1]) as usize * rect_width;
-                        let row = (ty - rows.start) as usize * tiles_x;
-                        for tx in r[0]..r[2] {
-                            let slot = &mut fill[row + tx as usize];
-                            let k = *slot as usize;
-                            *slot += 1;
-                            // SAFETY: k is an entry of one of this band's tiles and `entry` the
-                            // (splat, tile) pair of one of them; no other band writes either,
-                            // and both are below `total`, the length of the two buffers.
-                            unsafe {
-                                sorted_splats.write(k, d.splat);
-                                sorted_position.write(entry, k as u32);
-                            }
-                            entry += 1;
-                        }
+        self.scatter(|d, _, k| {
+            // SAFETY: k is an entry of one of this band's tiles, which no other band writes,
+            // and below the total, the buffer's length.
+            unsafe { sorted_splats.write(k, d.splat) };
+        });
+    }
+
+    /// Position in the depth-sorted order of each entry in splat-major order (entry e of
+    /// splat s is `splat_range(s).start + e`, its tiles row by row), computed on first use
+    /// after each [`TileBins::build`]: the CPU rasterizer does not need it; the GPU's
+    /// per-splat reduction does.
+    pub fn sorted_position(&mut self) -> &[u32] {
+        if !self.positions_filled {
+            self.sorted_position.resize(self.sorted_splats.len(), 0);
+            let sorted_position = Disjoint(self.sorted_position.as_mut_ptr());
+            let splat_offsets = &self.splat_offsets;
+            let tiles_x = self.tiles_x;
+            let mut fill = std::mem::take(&mut self.tile_fill);
+            fill.copy_from_slice(&self.tile_offsets);
+            scatter_bands(
+                &self.by_depth,
+                &mut fill,
+                tiles_x,
+                self.tiles_y,
+                |d, tile, k| {
+                    let [x0, y0, x1, _] = d.rect;
+                    let (tx, ty) = ((tile % tiles_x) as u32, (tile / tiles_x) as u32);
+                    let entry = splat_offsets[d.splat as usize] + (ty - y0) * (x1 - x0) + (tx - x0);
+                    // SAFETY: every (splat, tile) pair has its own entry, below the total, and
+                    // only the band of the tile writes it.
+                    unsafe { sorted_position.write(entry as usize, k as u32) };
+                },
+            );
+            self.tile_fill = fill;
+            self.positions_filled = true;
+        }
+        &self.sorted_position
+    }
+
+    /// Calls `place(splat, tile, k)` for every entry of the bins, k its sorted position, in
+    /// depth order within each tile, tiles in bands in parallel.
+    fn scatter(&mut self, place: impl Fn(&DepthOrdered, usize, usize) + Sync) {
+        self.tile_fill.copy_from_slice(&self.tile_offsets);
+        scatter_bands(
+            &self.by_depth,
+            &mut self.tile_fill,
+            self.tiles_x,
+            self.tiles_y,
+            place,
+        );
+    }
+}
+
+/// The scatter of [`TileBins::scatter`]: `fill` holds each tile's next free position (one more
+/// than tiles; the last is unused), bands of tile rows run in parallel, each scanning the splats
+/// in depth order.
+fn scatter_bands(
+    by_depth: &[DepthOrdered],
+    fill: &mut [u32],
+    tiles_x: usize,
+    tiles_y: usize,
+    place: impl Fn(&DepthOrdered, usize, usize) + Sync,
+) {
+    let tile_count = tiles_x * tiles_y;
+    // At least 1: an image without tiles (zero width or height) has no chunks anyway.
+    let tiles_per_band = (tiles_x * tiles_y.div_ceil(band_count())).max(1);
+    fill[..tile_count]
+        .par_chunks_mut(tiles_per_band)
+        .enumerate()
+        .for_each(|(band, fill)| {
+            let rows = band_rows(band, tiles_per_band, fill.len(), tiles_x);
+            let first_tile = rows.start as usize * tiles_x;
+            for d in by_depth {
+                let r = d.rect;
+                for ty in r[1].max(rows.start)..r[3].min(rows.end) {
+                    let row = (ty - rows.start) as usize * tiles_x;
+                    for tx in r[0]..r[2] {
+                        let local = row + tx as usize;
+                        let k = fill[local] as usize;
+                        fill[local] += 1;
+                        place(d, first_tile + local, k);
                     }
                 }
-            });
+            }
+        });
+}
+
+/// Sorts keys by their high 32 bits, stably (keys with equal high halves keep their order), by
+/// least-significant-digit radix sort in bytes; a byte that is the same in every key (the
+/// exponent of depths of one scale, say) costs one counting pass and no move.
+fn radix_sort_by_high_half(keys: &mut Vec<u64>, scratch: &mut Vec<u64>) {
+    scratch.clear();
+    scratch.resize(keys.len(), 0);
+    for shift in [32, 40, 48, 56] {
+        let digit = |k: u64| ((k >> shift) & 0xff) as usize;
+        let mut starts = [0usize; 256];
+        for &k in keys.iter() {
+            starts[digit(k)] += 1;
+        }
+        if keys.first().is_none_or(|&k| starts[digit(k)] == keys.len()) {
+            continue;
+        }
+        let mut sum = 0;
+        for start in starts.iter_mut() {
+            (*start, sum) = (sum, sum + *start);
+        }
+        for &k in keys.iter() {
+            let slot = &mut starts[digit(k)];
+            scratch[*slot] = k;
+            *slot += 1;
+        }
+        std::mem::swap(keys, scratch);
     }
 }
 
@@ -182,8 +277,6 @@ impl TileBins {
 #[derive(Clone, Copy, Debug, Default)]
 struct DepthOrdered {
     splat: u32,
-    /// Its first entry in splat-major order.
-    first_entry: u32,
     /// Its tile rectangle [x0, y0, x1, y1).
     rect: [u32; 4],
 }
