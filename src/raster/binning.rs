@@ -30,9 +30,14 @@ pub struct TileBins {
     positions_filled: bool,
     /// Tile t owns sorted entries `tile_offsets[t]..tile_offsets[t+1]`.
     pub tile_offsets: Vec<u32>,
-    tile_fill: Vec<u32>,
-    /// The 2-D difference array of the tile rectangles, (tiles_y + 1) × (tiles_x + 1).
-    rect_corners: Vec<i32>,
+    /// Per chunk of `by_depth`, per tile: the sorted position of the chunk's first entry in
+    /// the tile (chunk-major, tiles within).
+    chunk_starts: Vec<u32>,
+    /// `chunk_starts` as the scatter advances it.
+    chunk_fill: Vec<u32>,
+    /// Per chunk of `by_depth`, the 2-D difference array of its tile rectangles,
+    /// (tiles_y + 1) × (tiles_x + 1).
+    chunk_corners: Vec<i32>,
 }
 
 impl TileBins {
@@ -48,8 +53,9 @@ impl TileBins {
             + self.sorted_splats.capacity()
             + self.sorted_position.capacity()
             + self.tile_offsets.capacity()
-            + self.tile_fill.capacity()
-            + self.rect_corners.capacity())
+            + self.chunk_starts.capacity()
+            + self.chunk_fill.capacity()
+            + self.chunk_corners.capacity())
             + 8 * (self.sorted_keys.capacity() + self.sort_scratch.capacity())
             + std::mem::size_of::<DepthOrdered>() * self.by_depth.capacity()
     }
@@ -73,76 +79,71 @@ impl TileBins {
     ///
     /// Cost is linear in the (tile, splat) pairs plus one sort of the visible splats by depth:
     /// entries are scattered into their tiles in depth order (a stable counting sort by tile),
-    /// so every tile's list comes out depth-sorted without sorting each tile.
+    /// so every tile's list comes out depth-sorted without sorting each tile. The splats are
+    /// cut into chunks of consecutive depths that count and scatter in parallel, each chunk
+    /// from its own starting position in every tile.
     pub fn build(&mut self, splats: &[Splat], width: usize, height: usize) {
+        self.build_with(splats, width, height, &mut Vec::new(), |_| ());
+    }
+
+    /// [`TileBins::build`], and `out[s] = per_splat(&splats[s])` for every splat in the same
+    /// parallel pass over the splats, so that they are read from memory once.
+    pub(super) fn build_with<T: Send>(
+        &mut self,
+        splats: &[Splat],
+        width: usize,
+        height: usize,
+        out: &mut Vec<T>,
+        per_splat: impl Fn(&Splat) -> T + Sync,
+    ) {
         self.tiles_x = width.div_ceil(TILE);
         self.tiles_y = height.div_ceil(TILE);
         let tile_count = self.tiles_x * self.tiles_y;
         let (tiles_x, tiles_y) = (self.tiles_x as f32, self.tiles_y as f32);
         self.positions_filled = false;
 
-        splats
-            .par_iter()
-            .map(|s| tile_rect(s, tiles_x, tiles_y))
-            .collect_into_vec(&mut self.rects);
-
-        // Entries per splat (splat-major order), and per tile from a 2-D difference array of
-        // the rectangles: +1 at the corners (x0, y0) and (x1, y1), −1 at (x1, y0) and (x0, y1),
-        // then prefix sums along rows and columns. That costs a few additions per splat instead
-        // of one per entry.
-        let stride = self.tiles_x + 1;
-        self.rect_corners.clear();
-        self.rect_corners.resize(stride * (self.tiles_y + 1), 0);
-        self.splat_offsets.clear();
-        self.splat_offsets.reserve(splats.len() + 1);
-        self.splat_offsets.push(0);
-        let mut total = 0u32;
-        for r in &self.rects {
-            total += (r[2] - r[0]) * (r[3] - r[1]);
-            self.splat_offsets.push(total);
-            let [x0, y0, x1, y1] = r.map(|v| v as usize);
-            self.rect_corners[y0 * stride + x0] += 1;
-            self.rect_corners[y0 * stride + x1] -= 1;
-            self.rect_corners[y1 * stride + x0] -= 1;
-            self.rect_corners[y1 * stride + x1] += 1;
-        }
-        // Invisible splats have empty rectangles at the origin: their four updates cancel.
-        self.tile_fill.clear();
-        self.tile_fill.resize(tile_count + 1, 0);
-        let counts = &mut self.tile_fill[1..];
-        for ty in 0..self.tiles_y {
-            let mut row_sum = 0i32;
-            for tx in 0..self.tiles_x {
-                let tile = ty * self.tiles_x + tx;
-                row_sum += self.rect_corners[ty * stride + tx];
-                let above = if ty > 0 {
-                    counts[tile - self.tiles_x]
-                } else {
-                    0
-                };
-                counts[tile] = above.wrapping_add_signed(row_sum);
-            }
-        }
-        for t in 0..tile_count {
-            self.tile_fill[t + 1] += self.tile_fill[t];
-        }
-        self.tile_offsets.clear();
-        self.tile_offsets.extend_from_slice(&self.tile_fill);
-
-        // Splats that cover a tile, by depth; the splat index breaks ties. Depths are positive
-        // (beyond the near plane), so their bits order like the values.
-        self.sorted_keys.clear();
-        self.sorted_keys.extend(
-            self.rects
-                .iter()
+        // Per splat, its tile rectangle and its sort key: depth bits (high) and index (low),
+        // so the index breaks ties. Depths are positive (beyond the near plane), so their bits
+        // order like the values. A splat that covers no tile gets the largest key, which
+        // sorts it last, where it is cut off.
+        let n = splats.len();
+        self.rects.resize(n, [0; 4]);
+        self.sorted_keys.resize(n, 0);
+        out.clear();
+        out.par_extend(
+            splats
+                .par_iter()
+                .zip(self.rects.par_iter_mut())
+                .zip(self.sorted_keys.par_iter_mut())
                 .enumerate()
-                .filter(|(_, r)| r[2] > r[0])
-                .map(|(s, _)| ((splats[s].depth.to_bits() as u64) << 32) | s as u64),
+                .map(|(s, ((splat, rect), key))| {
+                    *rect = tile_rect(splat, tiles_x, tiles_y);
+                    *key = if rect[2] > rect[0] {
+                        ((splat.depth.to_bits() as u64) << 32) | s as u64
+                    } else {
+                        u64::MAX
+                    };
+                    per_splat(splat)
+                }),
         );
-        radix_sort_by_high_half(&mut self.sorted_keys, &mut self.sort_scratch);
 
-        // Each band scans every splat in depth order: gather what it reads of them once, so
-        // that the bands read one array front to back instead of jumping around two.
+        // Entries per splat (splat-major order).
+        self.splat_offsets.clear();
+        self.splat_offsets.reserve(n + 1);
+        self.splat_offsets.push(0);
+        let (mut total, mut covering) = (0u32, 0);
+        for r in &self.rects {
+            let area = (r[2] - r[0]) * (r[3] - r[1]);
+            total += area;
+            covering += (area > 0) as usize;
+            self.splat_offsets.push(total);
+        }
+
+        radix_sort_by_high_half(&mut self.sorted_keys, &mut self.sort_scratch);
+        self.sorted_keys.truncate(covering);
+
+        // What the scatter reads of each splat, gathered into depth order once, so that the
+        // chunks read one array front to back instead of jumping around two.
         let rects = &self.rects;
         self.sorted_keys
             .par_iter()
@@ -155,12 +156,59 @@ impl TileBins {
             })
             .collect_into_vec(&mut self.by_depth);
 
-        // Scatter in depth order, band by band in parallel.
+        // Entries per chunk and tile, from a 2-D difference array of each chunk's rectangles:
+        // +1 at the corners (x0, y0) and (x1, y1), −1 at (x1, y0) and (x0, y1), then prefix
+        // sums along rows and columns. That costs four additions per splat instead of one per
+        // entry.
+        let chunk_len = covering.div_ceil(chunk_count(covering)).max(1);
+        let chunks = covering.div_ceil(chunk_len);
+        let stride = self.tiles_x + 1;
+        let corners_len = stride * (self.tiles_y + 1);
+        self.chunk_corners.resize(chunks * corners_len, 0);
+        self.chunk_starts.resize(chunks * tile_count, 0);
+        let (tiles_x, tiles_y) = (self.tiles_x, self.tiles_y);
+        self.by_depth
+            .par_chunks(chunk_len)
+            .zip(self.chunk_corners.par_chunks_mut(corners_len.max(1)))
+            .zip(self.chunk_starts.par_chunks_mut(tile_count.max(1)))
+            .for_each(|((splats, corners), counts)| {
+                corners.fill(0);
+                for d in splats {
+                    let [x0, y0, x1, y1] = d.rect.map(|v| v as usize);
+                    corners[y0 * stride + x0] += 1;
+                    corners[y0 * stride + x1] -= 1;
+                    corners[y1 * stride + x0] -= 1;
+                    corners[y1 * stride + x1] += 1;
+                }
+                for ty in 0..tiles_y {
+                    let mut row_sum = 0i32;
+                    for tx in 0..tiles_x {
+                        let tile = ty * tiles_x + tx;
+                        row_sum += corners[ty * stride + tx];
+                        let above = if ty > 0 { counts[tile - tiles_x] } else { 0 };
+                        counts[tile] = above.wrapping_add_signed(row_sum);
+                    }
+                }
+            });
+
+        // Each tile's entries: chunk by chunk, so chunk c starts in tile t after the entries
+        // of the chunks before it.
+        self.tile_offsets.clear();
+        self.tile_offsets.push(0);
+        let mut next = 0u32;
+        for tile in 0..tile_count {
+            for chunk in 0..chunks {
+                let count = &mut self.chunk_starts[chunk * tile_count + tile];
+                (*count, next) = (next, next + *count);
+            }
+            self.tile_offsets.push(next);
+        }
+
         self.sorted_splats.resize(total as usize, 0);
         let sorted_splats = Disjoint(self.sorted_splats.as_mut_ptr());
         self.scatter(|d, _, k| {
-            // SAFETY: k is an entry of one of this band's tiles, which no other band writes,
-            // and below the total, the buffer's length.
+            // SAFETY: k is a position that only this chunk's entry in this tile takes, below
+            // the total, the buffer's length.
             unsafe { sorted_splats.write(k, d.splat) };
         });
     }
@@ -173,100 +221,82 @@ impl TileBins {
         if !self.positions_filled {
             self.sorted_position.resize(self.sorted_splats.len(), 0);
             let sorted_position = Disjoint(self.sorted_position.as_mut_ptr());
-            let splat_offsets = &self.splat_offsets;
-            let tiles_x = self.tiles_x;
-            let mut fill = std::mem::take(&mut self.tile_fill);
-            fill.copy_from_slice(&self.tile_offsets);
-            scatter_bands(
-                &self.by_depth,
-                &mut fill,
-                tiles_x,
-                self.tiles_y,
-                |d, tile, k| {
-                    let [x0, y0, x1, _] = d.rect;
-                    let (tx, ty) = ((tile % tiles_x) as u32, (tile / tiles_x) as u32);
-                    let entry = splat_offsets[d.splat as usize] + (ty - y0) * (x1 - x0) + (tx - x0);
-                    // SAFETY: every (splat, tile) pair has its own entry, below the total, and
-                    // only the band of the tile writes it.
-                    unsafe { sorted_position.write(entry as usize, k as u32) };
-                },
-            );
-            self.tile_fill = fill;
+            let (splat_offsets, tiles_x) = (std::mem::take(&mut self.splat_offsets), self.tiles_x);
+            self.scatter(|d, tile, k| {
+                let [x0, y0, x1, _] = d.rect;
+                let (tx, ty) = ((tile % tiles_x) as u32, (tile / tiles_x) as u32);
+                let entry = splat_offsets[d.splat as usize] + (ty - y0) * (x1 - x0) + (tx - x0);
+                // SAFETY: every (splat, tile) pair has its own entry, below the total, and
+                // only the chunk of the splat writes it.
+                unsafe { sorted_position.write(entry as usize, k as u32) };
+            });
+            self.splat_offsets = splat_offsets;
             self.positions_filled = true;
         }
         &self.sorted_position
     }
 
-    /// Calls `place(splat, tile, k)` for every entry of the bins, k its sorted position, in
-    /// depth order within each tile, tiles in bands in parallel.
+    /// Calls `place(splat, tile, k)` for every entry of the bins, k its sorted position: the
+    /// chunks of `by_depth` in parallel, each in depth order from its starting positions.
     fn scatter(&mut self, place: impl Fn(&DepthOrdered, usize, usize) + Sync) {
-        self.tile_fill.copy_from_slice(&self.tile_offsets);
-        scatter_bands(
-            &self.by_depth,
-            &mut self.tile_fill,
-            self.tiles_x,
-            self.tiles_y,
-            place,
-        );
+        let tile_count = self.tiles_x * self.tiles_y;
+        let chunk_len = self
+            .by_depth
+            .len()
+            .div_ceil(chunk_count(self.by_depth.len()))
+            .max(1);
+        let tiles_x = self.tiles_x;
+        self.chunk_fill.clone_from(&self.chunk_starts);
+        self.by_depth
+            .par_chunks(chunk_len)
+            .zip(self.chunk_fill.par_chunks_mut(tile_count.max(1)))
+            .for_each(|(splats, fill)| {
+                for d in splats {
+                    let [x0, y0, x1, y1] = d.rect.map(|v| v as usize);
+                    for ty in y0..y1 {
+                        let row = ty * tiles_x;
+                        for (tile, next) in (row + x0..).zip(&mut fill[row + x0..row + x1]) {
+                            place(d, tile, *next as usize);
+                            *next += 1;
+                        }
+                    }
+                }
+            });
     }
 }
 
-/// The scatter of [`TileBins::scatter`]: `fill` holds each tile's next free position (one more
-/// than tiles; the last is unused), bands of tile rows run in parallel, each scanning the splats
-/// in depth order.
-fn scatter_bands(
-    by_depth: &[DepthOrdered],
-    fill: &mut [u32],
-    tiles_x: usize,
-    tiles_y: usize,
-    place: impl Fn(&DepthOrdered, usize, usize) + Sync,
-) {
-    let tile_count = tiles_x * tiles_y;
-    // At least 1: an image without tiles (zero width or height) has no chunks anyway.
-    let tiles_per_band = (tiles_x * tiles_y.div_ceil(band_count())).max(1);
-    fill[..tile_count]
-        .par_chunks_mut(tiles_per_band)
-        .enumerate()
-        .for_each(|(band, fill)| {
-            let rows = band_rows(band, tiles_per_band, fill.len(), tiles_x);
-            let first_tile = rows.start as usize * tiles_x;
-            for d in by_depth {
-                let r = d.rect;
-                for ty in r[1].max(rows.start)..r[3].min(rows.end) {
-                    let row = (ty - rows.start) as usize * tiles_x;
-                    for tx in r[0]..r[2] {
-                        let local = row + tx as usize;
-                        let k = fill[local] as usize;
-                        fill[local] += 1;
-                        place(d, first_tile + local, k);
-                    }
-                }
-            }
-        });
+/// How many chunks the splats are cut into for binning: a few per thread, so an uneven chunk
+/// does not hold the others up, but none below 8 192 splats, where the per-chunk arrays would
+/// cost more than the parallelism gains. The bins come out the same for any count.
+fn chunk_count(items: usize) -> usize {
+    (items / 8192).clamp(1, 4 * rayon::current_num_threads())
 }
 
 /// Sorts keys by their high 32 bits, stably (keys with equal high halves keep their order), by
 /// least-significant-digit radix sort in bytes; a byte that is the same in every key (the
-/// exponent of depths of one scale, say) costs one counting pass and no move.
+/// exponent of depths of one scale, say) costs one counting pass and no move. (It is bound by
+/// memory: counting and moving in parallel chunks was no faster on two cores.)
 fn radix_sort_by_high_half(keys: &mut Vec<u64>, scratch: &mut Vec<u64>) {
-    scratch.clear();
     scratch.resize(keys.len(), 0);
     for shift in [32, 40, 48, 56] {
         let digit = |k: u64| ((k >> shift) & 0xff) as usize;
-        let mut starts = [0usize; 256];
+        let mut next = [0u32; 256];
         for &k in keys.iter() {
-            starts[digit(k)] += 1;
+            next[digit(k)] += 1;
         }
-        if keys.first().is_none_or(|&k| starts[digit(k)] == keys.len()) {
+        if keys
+            .first()
+            .is_none_or(|&k| next[digit(k)] as usize == keys.len())
+        {
             continue;
         }
         let mut sum = 0;
-        for start in starts.iter_mut() {
-            (*start, sum) = (sum, sum + *start);
+        for count in next.iter_mut() {
+            (*count, sum) = (sum, sum + *count);
         }
         for &k in keys.iter() {
-            let slot = &mut starts[digit(k)];
-            scratch[*slot] = k;
+            let slot = &mut next[digit(k)];
+            scratch[*slot as usize] = k;
             *slot += 1;
         }
         std::mem::swap(keys, scratch);
@@ -279,27 +309,6 @@ struct DepthOrdered {
     splat: u32,
     /// Its tile rectangle [x0, y0, x1, y1).
     rect: [u32; 4],
-}
-
-/// Bands of tile rows binned in parallel: a few per thread, so an uneven band does not hold
-/// the others up; one on a single thread, where every extra band rescans all splats for
-/// nothing.
-fn band_count() -> usize {
-    match rayon::current_num_threads() {
-        1 => 1,
-        threads => 2 * threads,
-    }
-}
-
-/// Tile rows of band `band` whose chunk of per-tile values has `len` tiles.
-fn band_rows(
-    band: usize,
-    tiles_per_band: usize,
-    len: usize,
-    tiles_x: usize,
-) -> std::ops::Range<u32> {
-    let first = band * tiles_per_band / tiles_x;
-    first as u32..(first + len / tiles_x) as u32
 }
 
 /// A buffer that parallel tasks write at indices no two of them share.

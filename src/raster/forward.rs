@@ -24,11 +24,8 @@ impl Rasterizer {
 
     /// Bins `splats` into depth-sorted tile lists (the first half of [`Rasterizer::forward`]).
     pub fn bin(&mut self, splats: &[Splat], width: usize, height: usize) {
-        splats
-            .par_iter()
-            .map(Packed::new)
-            .collect_into_vec(&mut self.packed);
-        self.bins.build(splats, width, height);
+        self.bins
+            .build_with(splats, width, height, &mut self.packed, Packed::new);
     }
 
     /// Blends the splats binned by the last [`Rasterizer::bin`] call (the second half of

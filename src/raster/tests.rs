@@ -374,20 +374,22 @@ fn tiled_rasterizer_matches_per_pixel_reference() {
 
 /// Binning equals the definition (every visible splat in every tile its screen box overlaps,
 /// ordered by depth then index, and `sorted_position` pointing each (splat, tile) pair at its
-/// entry) for image sizes whose tile rows split unevenly into the parallel bands.
+/// entry) for image sizes with partial tiles or none, and for enough splats (40 000) that they
+/// are cut into several chunks binned in parallel.
 #[test]
 fn binning_matches_naive_per_tile_lists() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    for (w, h) in [
-        (37, 29),
-        (83, 45),
-        (200, 75),
-        (16, 200),
-        (333, 17),
-        (0, 40),
-        (40, 0),
+    for (w, h, n) in [
+        (37, 29, 300),
+        (83, 45, 300),
+        (200, 75, 300),
+        (16, 200, 300),
+        (333, 17, 300),
+        (0, 40, 300),
+        (40, 0, 300),
+        (83, 45, 40_000),
     ] {
-        let mut splats = crowded_scene(&mut rng, 300, w, h);
+        let mut splats = crowded_scene(&mut rng, n, w, h);
         // Equal depths exercise the index tie-break.
         for s in splats.iter_mut().step_by(7) {
             s.depth = 2.0;
