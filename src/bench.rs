@@ -21,6 +21,7 @@ use crate::gpu::{GpuError, GpuTraining};
 use crate::io::image::Image;
 use crate::model::deform::{FOURIER_TERMS, logit};
 use crate::model::sh::rgb_to_sh_dc;
+use crate::raster::PairCounts;
 use crate::resources::{LossImage, SplatBuffers, ViewSample};
 use crate::scene::{BackendKind, DataSource, SceneConfig};
 use crate::systems::{adam, backward, deform, loss, render_schedule, resident, sample_view, splat};
@@ -176,6 +177,8 @@ pub struct BenchReport {
     pub visible: Option<usize>,
     /// (tile, splat) pairs.
     pub intersections: usize,
+    /// Gaussian–pixel pairs evaluated and blended by the last render (CPU backend only).
+    pub pairs: Option<PairCounts>,
     /// Median times per stage, in the order measured.
     pub stages: Vec<StageTime>,
     /// Bytes per Gaussian of its ECS components (parameters, gradients, Adam moments, state).
@@ -406,12 +409,16 @@ pub fn run(
         samples.record("render at a new time", time_ms(|| render.run(&mut world)));
     }
 
-    let (device, visible, intersections) = match world.get_resource::<GpuTraining>() {
-        Some(gpu) => (Some(gpu.describe()), None, gpu.intersections()),
+    let (device, visible, intersections, pairs) = match world.get_resource::<GpuTraining>() {
+        Some(gpu) => (Some(gpu.describe()), None, gpu.intersections(), None),
         None => {
             let buffers = world.resource::<SplatBuffers>();
             let visible = buffers.splats.iter().filter(|s| s.visible).count();
-            (None, Some(visible), buffers.rasterizer.intersections())
+            let pairs = buffers
+                .rasterizer
+                .pair_counts(width as usize, height as usize);
+            let tile_pairs = buffers.rasterizer.intersections();
+            (None, Some(visible), tile_pairs, Some(pairs))
         }
     };
     let scratch = scratch_bytes(world.resource::<SplatBuffers>());
@@ -423,6 +430,7 @@ pub fn run(
         device,
         visible,
         intersections,
+        pairs,
         stages: samples.medians(),
         component_bytes: gaussian_bytes(
             world
@@ -459,6 +467,9 @@ impl BenchReport {
         if let Some(device) = &self.device {
             out += &format!("GPU: {device}\n");
         }
+        if let Some(pairs) = self.pairs {
+            out += &self.pair_lines(pairs);
+        }
         out += &format!(
             "memory per Gaussian: {} B of components (parameters, gradients, Adam moments), \
              {:.0} B of per-iteration buffers, {:.0} B in all\n",
@@ -467,6 +478,32 @@ impl BenchReport {
             self.component_bytes as f64 + self.scratch_bytes
         );
         out
+    }
+}
+
+impl BenchReport {
+    /// The Gaussian–pixel pairs of the render and the CPU time per pair of the blend and the
+    /// raster backward (CPU time: the work per pair, whatever the number of threads).
+    fn pair_lines(&self, pairs: PairCounts) -> String {
+        let cpu_ms = |stage: &str| {
+            self.stages
+                .iter()
+                .find(|s| s.stage.trim() == stage)
+                .map_or(f64::NAN, |s| s.cpu_ms)
+        };
+        let ns_per = |ms: f64, count: u64| ms * 1e6 / count.max(1) as f64;
+        let (blend, backward) = (cpu_ms("blend"), cpu_ms("raster backward"));
+        format!(
+            "Gaussian-pixel pairs: {:.1} M evaluated (pixel in the splat's screen box and still \
+             blending), {:.1} M blended\n\
+             CPU ns per pair: blend {:.2} per evaluated, {:.2} per blended; raster backward \
+             {:.2} per blended\n",
+            pairs.evaluated as f64 / 1e6,
+            pairs.blended as f64 / 1e6,
+            ns_per(blend, pairs.evaluated),
+            ns_per(blend, pairs.blended),
+            ns_per(backward, pairs.blended),
+        )
     }
 }
 

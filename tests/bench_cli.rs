@@ -46,6 +46,8 @@ fn bench_prints_a_table_per_configuration() {
     }
     assert!(text.contains("64 × 36, 500 Gaussians") && text.contains("64 × 36, 1000 Gaussians"));
     assert!(text.contains("memory per Gaussian"));
+    assert_eq!(text.matches("Gaussian-pixel pairs: ").count(), 2, "{text}");
+    assert!(text.contains("CPU ns per pair: blend "), "{text}");
 }
 
 #[test]

@@ -3,9 +3,9 @@
 use rayon::prelude::*;
 
 use super::{
-    ALPHA_MAX, F16, GROUPS, GroupBits, LANES, M16, PREFETCH_AHEAD, Packed, Pairs, Rasterizer,
-    RenderOutput, RowSpans, SLOTS, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN, box_in_tile,
-    falloff_pair, prefetch_entry, row_spans, simd_kernel,
+    ALPHA_MAX, ALPHA_MIN, F16, GROUPS, GroupBits, LANES, M16, PREFETCH_AHEAD, Packed, Pairs,
+    Rasterizer, RenderOutput, RowSpans, SLOTS, Splat, TILE, TILE_PIXELS, TRANSMITTANCE_MIN,
+    box_in_tile, falloff_pair, prefetch_entry, row_spans, simd_kernel,
 };
 
 impl Rasterizer {
@@ -103,6 +103,77 @@ impl Rasterizer {
                     }
                 }
             });
+    }
+}
+
+/// Gaussian–pixel pairs of one forward pass (see [`Rasterizer::pair_counts`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PairCounts {
+    /// Pairs whose pixel is inside the splat's screen box and still blending when the splat's
+    /// turn comes: what a tile rasterizer without finer culling evaluates.
+    pub evaluated: u64,
+    /// Pairs blended into their pixel (alpha at least 1/255, the pixel not yet stopped).
+    pub blended: u64,
+}
+
+impl std::ops::Add for PairCounts {
+    type Output = PairCounts;
+    fn add(self, other: PairCounts) -> PairCounts {
+        PairCounts {
+            evaluated: self.evaluated + other.evaluated,
+            blended: self.blended + other.blended,
+        }
+    }
+}
+
+impl Rasterizer {
+    /// Counts the Gaussian–pixel pairs of the last forward pass on a `width × height` image,
+    /// by a plain per-pixel walk of its tile lists with the blending rules of the forward
+    /// (libm's exponential instead of the kernels' polynomial, so a pair at the 1/255 edge
+    /// may count differently). For reports: it takes longer than the forward pass itself.
+    pub fn pair_counts(&self, width: usize, height: usize) -> PairCounts {
+        let tiles_x = self.bins.tiles_x;
+        (0..tiles_x * self.bins.tiles_y)
+            .into_par_iter()
+            .map(|tile| {
+                let origin = ((tile % tiles_x) * TILE, (tile / tiles_x) * TILE);
+                let mut transmittance = [1f32; TILE_PIXELS];
+                // Pixels outside the image, and those that stopped, take no more splats.
+                let mut stopped: [bool; TILE_PIXELS] = std::array::from_fn(|p| {
+                    origin.0 + p % TILE >= width || origin.1 + p / TILE >= height
+                });
+                let mut counts = PairCounts::default();
+                for &s in &self.bins.sorted_splats[self.bins.tile_range(tile)] {
+                    let sp = &self.packed[s as usize];
+                    let [x0, x1, y0, y1] = box_in_tile(sp.mean, sp.extent, origin);
+                    for y in y0..y1 {
+                        for x in x0..x1 {
+                            let p = y * TILE + x;
+                            if stopped[p] {
+                                continue;
+                            }
+                            counts.evaluated += 1;
+                            let dx = (origin.0 + x) as f32 + 0.5 - sp.mean[0];
+                            let dy = (origin.1 + y) as f32 + 0.5 - sp.mean[1];
+                            let [a, b, c] = sp.conic;
+                            let power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy;
+                            let alpha = (sp.opacity * power.exp()).min(ALPHA_MAX);
+                            if power > 0.0 || alpha < ALPHA_MIN {
+                                continue;
+                            }
+                            let next = transmittance[p] * (1.0 - alpha);
+                            if next < TRANSMITTANCE_MIN {
+                                stopped[p] = true;
+                            } else {
+                                transmittance[p] = next;
+                                counts.blended += 1;
+                            }
+                        }
+                    }
+                }
+                counts
+            })
+            .reduce(PairCounts::default, |a, b| a + b)
     }
 }
 

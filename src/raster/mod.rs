@@ -21,6 +21,7 @@ use crate::io::image::Image;
 
 pub(crate) use backward::REDUCE_BANDS;
 pub use binning::TileBins;
+pub use forward::PairCounts;
 
 /// Tile side in pixels.
 pub const TILE: usize = 16;

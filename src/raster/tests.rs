@@ -441,6 +441,56 @@ fn binning_matches_naive_per_tile_lists() {
     }
 }
 
+/// The pair counts of `tadgs bench` equal a count made pixel by pixel: every visible splat whose
+/// tile rectangle holds the pixel's tile and whose screen box holds the pixel, in depth order,
+/// evaluated while the pixel still blends and blended when its alpha reaches 1/255.
+#[test]
+fn pair_counts_match_a_per_pixel_count() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (w, h) = (83, 45);
+    let splats = crowded_scene(&mut rng, 400, w, h);
+    let mut raster = Rasterizer::new();
+    raster.forward(&splats, w, h, [0.0; 3], &mut RenderOutput::default());
+    let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
+    let mut order: Vec<usize> = (0..splats.len()).filter(|&i| splats[i].visible).collect();
+    order.sort_by(|&a, &b| splats[a].depth.total_cmp(&splats[b].depth).then(a.cmp(&b)));
+    let mut expected = PairCounts::default();
+    for (px, py) in (0..h).flat_map(|y| (0..w).map(move |x| (x, y))) {
+        let (tx, ty) = (px / TILE, py / TILE);
+        let origin = (tx * TILE, ty * TILE);
+        let mut transmittance = 1f32;
+        for &i in &order {
+            let s = &splats[i];
+            let lo = ((s.mean2d - s.extent) / TILE as f32).floor();
+            let hi = ((s.mean2d + s.extent) / TILE as f32).floor() + Vec2::ONE;
+            let in_rect = (lo.x.max(0.0) as usize..(hi.x.min(tiles_x as f32)) as usize)
+                .contains(&tx)
+                && (lo.y.max(0.0) as usize..(hi.y.min(tiles_y as f32)) as usize).contains(&ty);
+            let [x0, x1, y0, y1] = box_in_tile(s.mean2d.to_array(), s.extent.to_array(), origin);
+            let (x, y) = (px - origin.0, py - origin.1);
+            if !in_rect || !(x0..x1).contains(&x) || !(y0..y1).contains(&y) {
+                continue;
+            }
+            expected.evaluated += 1;
+            let d = Vec2::new(px as f32 + 0.5, py as f32 + 0.5) - s.mean2d;
+            let [a, b, c] = s.conic;
+            let power = -0.5 * (a * d.x * d.x + c * d.y * d.y) - b * d.x * d.y;
+            let alpha = (s.opacity * power.exp()).min(ALPHA_MAX);
+            if power > 0.0 || alpha < ALPHA_MIN {
+                continue;
+            }
+            if transmittance * (1.0 - alpha) < TRANSMITTANCE_MIN {
+                break;
+            }
+            transmittance *= 1.0 - alpha;
+            expected.blended += 1;
+        }
+    }
+    let counts = raster.pair_counts(w, h);
+    assert!(counts.blended > 10_000 && counts.evaluated > counts.blended);
+    assert_eq!(counts, expected);
+}
+
 /// A reused rasterizer gives exactly the gradients of a fresh one: buffers left over from an
 /// earlier, larger frame (entries never walked this time) are never read.
 #[test]
