@@ -22,7 +22,7 @@ use std::mem::size_of;
 use crate::components::{Deformed, gaussian_bytes};
 use crate::data::Dataset;
 use crate::data::init::anchor_frames;
-use crate::raster::{PACKED_SPLAT_BYTES, REDUCE_BANDS, Splat, SplatGrad};
+use crate::raster::{PACKED_SPLAT_BYTES, Splat, SplatGrad};
 use crate::resources::DeformedGrad;
 use crate::scene::SceneConfig;
 
@@ -43,12 +43,12 @@ pub fn bytes_per_gaussian(sh_degree: u32) -> usize {
     // ECS storage: the components plus the entity id in its table and its location record.
     let ecs = gaussian_bytes(sh_degree) + 8 + 16;
     // Splatting arrays indexed by slot: deformed values, splat, packed splat, gradients and
-    // the backward's per-band sums of them, NDC gradient norm, tile rectangle, entry offset,
+    // the backward's second half-sum of them, NDC gradient norm, tile rectangle, entry offset,
     // depth key and its radix-sort buffer, and depth-ordered binning record.
     let slots = size_of::<Deformed>()
         + size_of::<Splat>()
         + PACKED_SPLAT_BYTES
-        + (1 + REDUCE_BANDS) * size_of::<SplatGrad>()
+        + 2 * size_of::<SplatGrad>()
         + size_of::<DeformedGrad>()
         + 4
         + 16

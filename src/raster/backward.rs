@@ -69,45 +69,36 @@ impl Rasterizer {
         );
 
         // Reduce the per-(tile, splat) partial sums to one gradient per splat, in tile order:
-        // the partial sums are read front to back and added into their splats. Bands of tiles
-        // add into buffers of their own in parallel, which are then added together; a fixed
-        // number of bands, so the sums do not depend on the thread count. The entries their
-        // tiles did not walk were never reached and have zero gradient.
+        // the partial sums are read front to back and added into their splats. The first half
+        // of the tiles adds into `grads` and the second into `lower_grads`, in parallel, and
+        // the two are then added: two halves whatever the thread count, so the sums do not
+        // depend on it. The entries their tiles did not walk were never reached and have zero
+        // gradient.
         let (bins, entry_grads) = (&self.bins, &self.entry_grads);
         let walked = &self.walked_offsets;
-        let n = splats.len();
-        self.band_grads.clear();
-        self.band_grads
-            .resize(REDUCE_BANDS * n, SplatGrad::default());
-        let tiles_per_band = tile_count.div_ceil(REDUCE_BANDS);
-        self.band_grads
-            .par_chunks_mut(n.max(1))
-            .enumerate()
-            .for_each(|(band, sums)| {
-                let first_tile = (band * tiles_per_band).min(tile_count);
-                let tiles = first_tile..(first_tile + tiles_per_band).min(tile_count);
-                for tile in tiles {
-                    let walked_grads =
-                        &entry_grads[walked[tile] as usize..walked[tile + 1] as usize];
-                    let entries = &bins.sorted_splats[bins.tile_range(tile)];
-                    for (&s, g) in entries.iter().zip(walked_grads) {
-                        sums[s as usize].add(g);
-                    }
+        let add_tiles = |tiles: std::ops::Range<usize>, sums: &mut Vec<SplatGrad>| {
+            sums.clear();
+            sums.resize(splats.len(), SplatGrad::default());
+            for tile in tiles {
+                let walked_grads = &entry_grads[walked[tile] as usize..walked[tile + 1] as usize];
+                let entries = &bins.sorted_splats[bins.tile_range(tile)];
+                for (&s, g) in entries.iter().zip(walked_grads) {
+                    sums[s as usize].add(g);
                 }
-            });
-        let band_grads = &self.band_grads;
-        grads.clear();
-        grads.resize(n, SplatGrad::default());
-        grads.par_iter_mut().enumerate().for_each(|(s, g)| {
-            for band in 0..REDUCE_BANDS {
-                g.add(&band_grads[band * n + s]);
             }
-        });
+        };
+        let middle = tile_count / 2;
+        let lower_grads = &mut self.lower_grads;
+        rayon::join(
+            || add_tiles(0..middle, grads),
+            || add_tiles(middle..tile_count, lower_grads),
+        );
+        grads
+            .par_iter_mut()
+            .zip(&self.lower_grads)
+            .for_each(|(g, lower)| g.add(lower));
     }
 }
-
-/// Bands of tiles whose partial sums the backward pass adds up separately, in parallel.
-pub(crate) const REDUCE_BANDS: usize = 2;
 
 /// Per-pixel state of the backward walk, in lane groups (group r holds pixels r·8 .. r·8 + 8).
 /// Colours enter the gradient only through their dot product with dL/dpixel, so the colour

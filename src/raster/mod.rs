@@ -19,7 +19,6 @@ use glam::Vec2;
 
 use crate::io::image::Image;
 
-pub(crate) use backward::REDUCE_BANDS;
 pub use binning::TileBins;
 pub use forward::PairCounts;
 
@@ -139,8 +138,8 @@ pub struct Rasterizer {
     /// Prefix sums over the tiles of how many entries the backward walks in each (the largest
     /// contributor count of its pixels), one more than tiles.
     walked_offsets: Vec<u32>,
-    /// Per-splat gradient sums of each band of tiles in the backward's reduction.
-    band_grads: Vec<SplatGrad>,
+    /// Per-splat gradient sums of the second half of the tiles in the backward's reduction.
+    lower_grads: Vec<SplatGrad>,
     background: [f32; 3],
 }
 
@@ -185,7 +184,7 @@ impl Rasterizer {
             + bytes(&self.tile_color)
             + bytes(&self.entry_grads)
             + bytes(&self.walked_offsets)
-            + bytes(&self.band_grads)
+            + bytes(&self.lower_grads)
     }
 
     fn tiles_x(&self) -> usize {
