@@ -479,9 +479,7 @@ impl BenchReport {
         );
         out
     }
-}
 
-impl BenchReport {
     /// The Gaussian–pixel pairs of the render and the CPU time per pair of the blend and the
     /// raster backward (CPU time: the work per pair, whatever the number of threads).
     fn pair_lines(&self, pairs: PairCounts) -> String {

@@ -160,7 +160,7 @@ impl TileBins {
         // +1 at the corners (x0, y0) and (x1, y1), −1 at (x1, y0) and (x0, y1), then prefix
         // sums along rows and columns. That costs four additions per splat instead of one per
         // entry.
-        let chunk_len = covering.div_ceil(chunk_count(covering)).max(1);
+        let chunk_len = chunk_len(covering);
         let chunks = covering.div_ceil(chunk_len);
         let stride = self.tiles_x + 1;
         let corners_len = stride * (self.tiles_y + 1);
@@ -240,11 +240,7 @@ impl TileBins {
     /// chunks of `by_depth` in parallel, each in depth order from its starting positions.
     fn scatter(&mut self, place: impl Fn(&DepthOrdered, usize, usize) + Sync) {
         let tile_count = self.tiles_x * self.tiles_y;
-        let chunk_len = self
-            .by_depth
-            .len()
-            .div_ceil(chunk_count(self.by_depth.len()))
-            .max(1);
+        let chunk_len = chunk_len(self.by_depth.len());
         let tiles_x = self.tiles_x;
         self.chunk_fill.clone_from(&self.chunk_starts);
         self.by_depth
@@ -265,11 +261,13 @@ impl TileBins {
     }
 }
 
-/// How many chunks the splats are cut into for binning: a few per thread, so an uneven chunk
-/// does not hold the others up, but none below 8 192 splats, where the per-chunk arrays would
-/// cost more than the parallelism gains. The bins come out the same for any count.
-fn chunk_count(items: usize) -> usize {
-    (items / 8192).clamp(1, 4 * rayon::current_num_threads())
+/// How many of `items` splats each chunk of the binning takes (the last may take fewer): a few
+/// chunks per thread, so an uneven chunk does not hold the others up, but none below 8 192
+/// splats, where the per-chunk arrays would cost more than the parallelism gains. The bins
+/// come out the same for any chunk length.
+fn chunk_len(items: usize) -> usize {
+    let chunks = (items / 8192).clamp(1, 4 * rayon::current_num_threads());
+    items.div_ceil(chunks).max(1)
 }
 
 /// Sorts keys by their high 32 bits, stably (keys with equal high halves keep their order), by

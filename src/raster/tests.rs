@@ -372,6 +372,19 @@ fn tiled_rasterizer_matches_per_pixel_reference() {
     assert!(grads[3] == SplatGrad::default());
 }
 
+/// The tiles [x0, x1) × [y0, y1) that a splat's screen box overlaps, by definition, as
+/// (x0, y0, x1, y1).
+fn tile_rectangle(s: &Splat, tiles_x: usize, tiles_y: usize) -> (usize, usize, usize, usize) {
+    let t = TILE as f32;
+    let lo = (s.mean2d - s.extent) / t;
+    let hi = (s.mean2d + s.extent) / t;
+    let x0 = lo.x.floor().clamp(0.0, tiles_x as f32) as usize;
+    let y0 = lo.y.floor().clamp(0.0, tiles_y as f32) as usize;
+    let x1 = (hi.x.floor() + 1.0).clamp(0.0, tiles_x as f32) as usize;
+    let y1 = (hi.y.floor() + 1.0).clamp(0.0, tiles_y as f32) as usize;
+    (x0, y0, x1, y1)
+}
+
 /// Binning equals the definition (every visible splat in every tile its screen box overlaps,
 /// ordered by depth then index, and `sorted_position` pointing each (splat, tile) pair at its
 /// entry) for image sizes with partial tiles or none, and for enough splats (40 000) that they
@@ -397,16 +410,7 @@ fn binning_matches_naive_per_tile_lists() {
         let mut bins = TileBins::default();
         bins.build(&splats, w, h);
         let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
-        let rect = |s: &Splat| {
-            let t = TILE as f32;
-            let lo = (s.mean2d - s.extent) / t;
-            let hi = (s.mean2d + s.extent) / t;
-            let x0 = lo.x.floor().clamp(0.0, tiles_x as f32) as usize;
-            let y0 = lo.y.floor().clamp(0.0, tiles_y as f32) as usize;
-            let x1 = (hi.x.floor() + 1.0).clamp(0.0, tiles_x as f32) as usize;
-            let y1 = (hi.y.floor() + 1.0).clamp(0.0, tiles_y as f32) as usize;
-            (x0, y0, x1, y1)
-        };
+        let rect = |s: &Splat| tile_rectangle(s, tiles_x, tiles_y);
         for ty in 0..tiles_y {
             for tx in 0..tiles_x {
                 let mut expected: Vec<usize> = (0..splats.len())
@@ -461,11 +465,8 @@ fn pair_counts_match_a_per_pixel_count() {
         let mut transmittance = 1f32;
         for &i in &order {
             let s = &splats[i];
-            let lo = ((s.mean2d - s.extent) / TILE as f32).floor();
-            let hi = ((s.mean2d + s.extent) / TILE as f32).floor() + Vec2::ONE;
-            let in_rect = (lo.x.max(0.0) as usize..(hi.x.min(tiles_x as f32)) as usize)
-                .contains(&tx)
-                && (lo.y.max(0.0) as usize..(hi.y.min(tiles_y as f32)) as usize).contains(&ty);
+            let (rx0, ry0, rx1, ry1) = tile_rectangle(s, tiles_x, tiles_y);
+            let in_rect = (rx0..rx1).contains(&tx) && (ry0..ry1).contains(&ty);
             let [x0, x1, y0, y1] = box_in_tile(s.mean2d.to_array(), s.extent.to_array(), origin);
             let (x, y) = (px - origin.0, py - origin.1);
             if !in_rect || !(x0..x1).contains(&x) || !(y0..y1).contains(&y) {
@@ -473,8 +474,7 @@ fn pair_counts_match_a_per_pixel_count() {
             }
             expected.evaluated += 1;
             let d = Vec2::new(px as f32 + 0.5, py as f32 + 0.5) - s.mean2d;
-            let [a, b, c] = s.conic;
-            let power = -0.5 * (a * d.x * d.x + c * d.y * d.y) - b * d.x * d.y;
+            let power = power(&s.conic, d.x, d.y);
             let alpha = (s.opacity * power.exp()).min(ALPHA_MAX);
             if power > 0.0 || alpha < ALPHA_MIN {
                 continue;
