@@ -53,7 +53,13 @@ pub fn insert_resources(
 ) -> Result<(), GpuError> {
     let first = dataset.train.first();
     let camera = first.map_or(dataset.cameras[0], |v| dataset.cameras[v.camera]);
-    let extent = scene_extent(&dataset.cameras);
+    // Held-out cameras must not influence training, not even through the extent.
+    let train_cameras = dataset.training_rig();
+    let extent = scene_extent(if train_cameras.is_empty() {
+        &dataset.cameras
+    } else {
+        &train_cameras
+    });
     insert_render_resources(world, scene, dataset.frame_count, extent, camera)?;
     *world.resource_mut::<ViewSample>() = ViewSample {
         camera,
@@ -196,12 +202,7 @@ fn anchor_points(
     let init = &scene.init;
     let count = init.points_per_anchor;
     let random = |rng: &mut rand_chacha::ChaCha8Rng| {
-        let cameras: Vec<Camera> = dataset
-            .train_cameras()
-            .iter()
-            .map(|&c| dataset.cameras[c])
-            .collect();
-        random_points_in_view(&cameras, count, rng)
+        random_points_in_view(&dataset.training_rig(), count, rng)
     };
     match init.method {
         InitMethod::Random => Ok(random(rng)),

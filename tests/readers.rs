@@ -360,6 +360,39 @@ fn synthetic_panoptic_loads_cameras_views_and_masks() {
     assert!(no_masks.train.iter().all(|v| v.foreground.is_none()));
 }
 
+/// `validation_cameras` turns those training cameras into the evaluation set (without their
+/// foreground masks) and leaves the capture's own held-out cameras out entirely; a camera that
+/// is not a training camera is an error naming it.
+#[test]
+fn panoptic_validation_split_replaces_the_held_out_cameras() {
+    let dir = synthetic_panoptic();
+    let data = panoptic::load(&PanopticSource {
+        validation_cameras: Some(vec![4]),
+        ..source(&dir)
+    })
+    .unwrap();
+    assert_eq!(data.train_cameras(), vec![2], "only camera 9 trains");
+    assert_eq!(data.test_cameras(), vec![0], "camera 4 validates");
+    assert_eq!((data.train.len(), data.test.len()), (2, 2));
+    assert!(data.test.iter().all(|v| v.foreground.is_none()));
+    assert!(
+        data.test.iter().all(|v| v.camera != 1),
+        "held-out camera 6 is not loaded"
+    );
+
+    let error = panoptic::load(&PanopticSource {
+        validation_cameras: Some(vec![6]),
+        ..source(&dir)
+    })
+    .expect_err("a held-out camera cannot validate");
+    assert!(error.to_string().contains("validation camera 6"), "{error}");
+    let empty = PanopticSource {
+        validation_cameras: Some(vec![]),
+        ..source(&dir)
+    };
+    assert_eq!(empty.check().unwrap_err().0, "validation_cameras");
+}
+
 /// Loads a synthetic dataset after `defect` edited it, expecting an error whose message
 /// contains every one of `expected`.
 fn expect_panoptic_error(defect: impl FnOnce(&Path), expected: &[&str]) -> DataError {

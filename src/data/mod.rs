@@ -99,6 +99,14 @@ impl Dataset {
         distinct_cameras(&self.train)
     }
 
+    /// The cameras of the training views, in increasing index order.
+    pub fn training_rig(&self) -> Vec<Camera> {
+        self.train_cameras()
+            .iter()
+            .map(|&c| self.cameras[c])
+            .collect()
+    }
+
     /// Distinct camera indices of the held-out views, in increasing order.
     pub fn test_cameras(&self) -> Vec<usize> {
         distinct_cameras(&self.test)

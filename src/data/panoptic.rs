@@ -43,6 +43,12 @@ pub struct PanopticSource {
     /// divisible by it is rounded down, dropping the last pixels on the right and bottom.
     #[serde(default = "one_u32")]
     pub downscale: u32,
+    /// Training camera ids to hold out as a validation split: their views become the
+    /// evaluation set and the capture's own held-out cameras (`test_meta.json`) are not loaded
+    /// at all. For choosing settings without looking at the held-out cameras; `None` (the
+    /// default) is the standard split.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_cameras: Option<Vec<u64>>,
 }
 
 impl PanopticSource {
@@ -57,6 +63,12 @@ impl PanopticSource {
         if self.downscale == 0 {
             return Err(("downscale", "must be at least 1".into()));
         }
+        if self.validation_cameras.as_ref().is_some_and(Vec::is_empty) {
+            return Err((
+                "validation_cameras",
+                "must name at least one training camera, or be None".into(),
+            ));
+        }
         Ok(())
     }
 
@@ -68,6 +80,7 @@ impl PanopticSource {
             frame_stride: 1,
             foreground_masks: true,
             downscale: 1,
+            validation_cameras: None,
         }
     }
 }
@@ -145,10 +158,28 @@ pub fn load(source: &PanopticSource) -> Result<Dataset, DataError> {
 
     let (cameras, camera_index) = build_cameras(&[&train, &test], source.downscale)?;
 
+    let validation = source.validation_cameras.as_deref();
+    if let Some(ids) = validation {
+        let train_ids: Vec<u64> = train.timesteps[0].iter().map(|v| v.cam_id).collect();
+        if let Some(id) = ids.iter().find(|id| !train_ids.contains(id)) {
+            return Err(DataError::field(
+                &train.path,
+                "cam_id",
+                format!("validation camera {id} is not a training camera of this capture"),
+            ));
+        }
+    }
+    let metas: &[(&Meta, bool)] = if validation.is_some() {
+        &[(&train, true)]
+    } else {
+        &[(&train, true), (&test, false)]
+    };
     let mut jobs = Vec::new();
-    for (meta, is_train) in [(&train, true), (&test, false)] {
+    for &(meta, from_train_meta) in metas {
         for (frame, &t) in kept.iter().enumerate() {
             for view in &meta.timesteps[t] {
+                let is_train =
+                    from_train_meta && !validation.is_some_and(|ids| ids.contains(&view.cam_id));
                 let image_path = root.join("ims").join(&view.file_name);
                 if !image_path.is_file() {
                     return Err(DataError::field(
