@@ -175,7 +175,8 @@ fn temporal_factor(raw: vec2<f32>, dtw: f32) -> TemporalFactor {
         w = frame.temporal.y;
     }
     let r2 = (dtw / w) * (dtw / w);
-    return TemporalFactor(exp(-0.5 * r2), side, select(r2, 0.0, clamped));
+    // exp(−(dtw/w)²), as the authors' implementation; d exponent / ds = 2 r².
+    return TemporalFactor(exp(-r2), side, select(2.0 * r2, 0.0, clamped));
 }
 
 fn raw_rotation(c0: vec4<f32>, c1: vec4<f32>, dtw: f32) -> vec4<f32> {

@@ -79,7 +79,7 @@ impl StatsParams {
             min_opacity: config.min_opacity.unwrap_or(0.0),
             model,
             w_min,
-            asymmetric_k: (2.0 * LN_5).sqrt(),
+            asymmetric_k: LN_5.sqrt(),
             warp,
             rho,
             // The slopes as TimeWarp computes them (1 for the identity, unused).

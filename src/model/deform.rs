@@ -85,7 +85,7 @@ pub fn fourier_offset_backward(
 pub enum TemporalOpacity {
     /// Paper: exp(−ψ·dtw²) with ψ = exp(`temporal_raw[0]`).
     Rbf,
-    /// Implementation: exp(−½(dtw/w)²) with separate left (dtw < 0, `temporal_raw[0]`) and
+    /// Implementation: exp(−(dtw/w)²) with separate left (dtw < 0, `temporal_raw[0]`) and
     /// right (dtw ≥ 0, `temporal_raw[1]`) widths w = min(w_min·exp(s), 1.1).
     Asymmetric {
         /// Smallest width w_min (the width at s = 0).
@@ -95,7 +95,9 @@ pub enum TemporalOpacity {
 
 impl TemporalOpacity {
     /// The asymmetric form for a `frame_count`-frame sequence:
-    /// w_min = h / sqrt(−ln 0.2) with h = ((50 − 1)/2)/(T − 1).
+    /// w_min = h / sqrt(−ln 0.2) with h = ((50 − 1)/2)/(T − 1), so that at s = 0 the factor
+    /// exp(−(dtw/w)²) falls to 0.2 at |dtw| = h, as in the authors' implementation. (SPEC §2
+    /// writes exp(−½(dtw/w)²), which with this w_min is √2 wider than the authors' code.)
     pub fn asymmetric(frame_count: usize) -> Self {
         let h = 0.5 * (50.0 - 1.0) / frame_intervals(frame_count);
         Self::Asymmetric {
@@ -154,15 +156,15 @@ fn temporal_factor(model: TemporalOpacity, temporal_raw: [f32; 2], dtw: f32) -> 
         TemporalOpacity::Asymmetric { w_min } => {
             let (side, w, clamped) = asymmetric_width(w_min, temporal_raw, dtw);
             let r2 = (dtw / w) * (dtw / w);
-            // d(−½ dtw²/w²)/ds = dtw²/w² (w = w_min e^s); zero through the clamp.
-            (((-0.5) * r2).exp(), side, if clamped { 0.0 } else { r2 })
+            // d(−dtw²/w²)/ds = 2·dtw²/w² (w = w_min e^s); zero through the clamp.
+            ((-r2).exp(), side, if clamped { 0.0 } else { 2.0 * r2 })
         }
     }
 }
 
 /// Opacity at time t: σ(t) = sigmoid(opacity_logit)·(σ(t)/σ^s) where the temporal factor is
 /// exp(−ψ·dtw²), ψ = exp(`temporal_raw[0]`) for [`TemporalOpacity::Rbf`] and
-/// exp(−½(dtw/w)²), w = min(w_min·exp(s), 1.1), s = `temporal_raw[0]` for dtw < 0 and
+/// exp(−(dtw/w)²), w = min(w_min·exp(s), 1.1), s = `temporal_raw[0]` for dtw < 0 and
 /// `temporal_raw[1]` for dtw ≥ 0, for [`TemporalOpacity::Asymmetric`].
 #[inline]
 pub fn temporal_opacity(
@@ -197,7 +199,7 @@ pub fn temporal_opacity_backward(
 /// Definition: the Lebesgue measure of {t ∈ [0, 1] : σ(t)/σ^s > 0.2}, where σ(t) is evaluated
 /// at dtw = `warp.apply(t − center)`. Since the temporal factor is a decreasing function of
 /// |dtw| on each side, the set is the interval of t with W(t − center) ∈ (−a_left, a_right):
-/// a = sqrt(ln 5 / ψ) on both sides for [`TemporalOpacity::Rbf`] and a = w·sqrt(2 ln 5) per
+/// a = sqrt(ln 5 / ψ) on both sides for [`TemporalOpacity::Rbf`] and a = w·sqrt(ln 5) per
 /// side for [`TemporalOpacity::Asymmetric`]. Mapping back, l = W⁻¹(a_left), r = W⁻¹(a_right),
 /// and ψ̄ = length([center − l, center + r] ∩ [0, 1]).
 pub fn lifespan_fraction(
@@ -213,7 +215,7 @@ pub fn lifespan_fraction(
             (a, a)
         }
         TemporalOpacity::Asymmetric { w_min } => {
-            let k = (2.0 * LN_5).sqrt();
+            let k = LN_5.sqrt();
             let left = asymmetric_width(w_min, temporal_raw, -1.0).1;
             let right = asymmetric_width(w_min, temporal_raw, 1.0).1;
             (left * k, right * k)
@@ -228,7 +230,7 @@ pub fn lifespan_fraction(
 /// t − t_i = ±half_width_frames/(T − 1) (in warped time).
 ///
 /// Rbf: ψ = ln 5 / W(h)², raw = [ln ψ, 0] (`temporal_raw[1]` is unused).
-/// Asymmetric: both sides s = ln(W(h) / (sqrt(2 ln 5)·w_min)); if that width exceeds the
+/// Asymmetric: both sides s = ln(W(h) / (sqrt(ln 5)·w_min)); if that width exceeds the
 /// 1.1 cap, s is set (a hair below) where the cap starts, so the width is the cap but the
 /// gradient is not cut off. `half_width_frames` should be positive.
 pub fn init_temporal_raw(
@@ -243,7 +245,7 @@ pub fn init_temporal_raw(
     match model {
         TemporalOpacity::Rbf => [(LN_5 / (wh * wh)).ln(), 0.0],
         TemporalOpacity::Asymmetric { w_min } => {
-            let w = wh / (2.0 * LN_5).sqrt();
+            let w = wh / LN_5.sqrt();
             let s = if w < ASYMMETRIC_MAX_WIDTH {
                 (w / w_min).ln()
             } else {
@@ -436,13 +438,13 @@ mod tests {
         let model = TemporalOpacity::Asymmetric { w_min: 0.05 };
         let left = temporal_opacity(model, 0.4, [1.0, 2.0], -0.2);
         let w = 0.05 * 1.0f32.exp();
-        assert!((left - sig * (-0.5 * (0.2 / w) * (0.2 / w)).exp()).abs() < 1e-6);
+        assert!((left - sig * (-(0.2 / w) * (0.2 / w)).exp()).abs() < 1e-6);
         let right = temporal_opacity(model, 0.4, [1.0, 2.0], 0.2);
         let w = 0.05 * 2.0f32.exp();
-        assert!((right - sig * (-0.5 * (0.2 / w) * (0.2 / w)).exp()).abs() < 1e-6);
+        assert!((right - sig * (-(0.2 / w) * (0.2 / w)).exp()).abs() < 1e-6);
         // Clamped width.
         let wide = temporal_opacity(model, 0.4, [1.0, 10.0], 0.5);
-        assert!((wide - sig * (-0.5 * (0.5f32 / 1.1).powi(2)).exp()).abs() < 1e-6);
+        assert!((wide - sig * (-(0.5f32 / 1.1).powi(2)).exp()).abs() < 1e-6);
         // Peak equals the spatial opacity.
         assert_eq!(temporal_opacity(model, 0.4, [1.0, 2.0], 0.0), sig);
     }
@@ -538,14 +540,14 @@ mod tests {
         };
         let raw = [(LN_5 / 0.16).ln(), 0.0];
         assert!((lifespan_fraction(rbf, raw, 0.5, &warp) - 0.68).abs() < 1e-5);
-        // Asymmetric: w = a / sqrt(2 ln 5) per side; left 0.1, right 0.3 (clipped at 1).
+        // Asymmetric: w = a / sqrt(ln 5) per side; left 0.1, right 0.3 (clipped at 1).
         let w_min = 0.05;
         let model = TemporalOpacity::Asymmetric { w_min };
-        let k = (2.0 * LN_5).sqrt();
+        let k = LN_5.sqrt();
         let raw = [(0.1 / k / w_min).ln(), (0.3 / k / w_min).ln()];
         assert!((lifespan_fraction(model, raw, 0.5, &id) - 0.4).abs() < 1e-5);
         assert!((lifespan_fraction(model, raw, 0.8, &id) - 0.3).abs() < 1e-5);
-        // Capped width 1.1: alive for |Δt| < 1.1·sqrt(2 ln 5) > 1 → whole sequence.
+        // Capped width 1.1: alive for |Δt| < 1.1·sqrt(ln 5) > 1 → whole sequence.
         assert_eq!(lifespan_fraction(model, [20.0, 20.0], 0.0, &id), 1.0);
     }
 
