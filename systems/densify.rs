@@ -13,7 +13,7 @@ use crate::components::{
 };
 use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
-use crate::scene::TatForm;
+use crate::scene::{DensifyConfig, TatForm};
 
 /// Children of a split have their scales divided by this.
 pub const SPLIT_SCALE_DIVISOR: f32 = 1.6;
@@ -81,9 +81,22 @@ pub fn densify_step(settings: Res<Settings>, state: Res<TrainState>) -> bool {
 
 /// Run condition: this iteration resets the opacities.
 pub fn opacity_reset_step(settings: Res<Settings>, state: Res<TrainState>) -> bool {
-    let d = &settings.densify;
-    let i = state.iteration;
-    d.opacity_reset_interval > 0 && i <= d.until_iter && i % d.opacity_reset_interval == 0
+    is_opacity_reset(
+        &settings.densify,
+        settings.train.iterations,
+        state.iteration,
+    )
+}
+
+/// Whether iteration `i` of a run of `iterations` resets the opacities: every
+/// `opacity_reset_interval` up to `until_iter`, but never in the last 10 % of the run, which
+/// would leave the model too few iterations to recover its opacities.
+pub fn is_opacity_reset(densify: &DensifyConfig, iterations: u32, i: u32) -> bool {
+    let interval = densify.opacity_reset_interval;
+    interval > 0
+        && i <= densify.until_iter
+        && i % interval == 0
+        && u64::from(i) * 10 <= u64::from(iterations) * 9
 }
 
 /// Adds this iteration's view to every visible Gaussian's statistics.

@@ -295,3 +295,103 @@ fn degree_zero_models_store_no_higher_bands() {
         assert_eq!(a.to_bits(), b.to_bits(), "iteration {i}: loss {a} vs {b}");
     }
 }
+
+/// `scale_schedule` keeps the shape of every shipped scene's schedule at any run length: the
+/// densification window starts and ends at the same fractions of the run, opacity resets come
+/// as often relative to its length, and no opacity reset falls in the last 10 % of the run.
+#[test]
+fn scaled_schedules_keep_their_shape_and_never_reset_late() {
+    use tadgs::scene::load_scene;
+    use tadgs::systems::densify::is_opacity_reset;
+    let scenes = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes");
+    for name in ["demo", "panoptic", "dnerf", "n3dv"] {
+        let file = load_scene(std::path::Path::new(&format!("{scenes}/{name}.ron")))
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let resets = |c: &SceneConfig| {
+            (1..=c.train.iterations)
+                .filter(|&i| is_opacity_reset(&c.densify, c.train.iterations, i))
+                .collect::<Vec<u32>>()
+        };
+        let fraction = |n: u32, c: &SceneConfig| n as f64 / c.train.iterations as f64;
+        for iterations in [100, 777, 1000, 5000, 15_000, 40_000, 100_000] {
+            let mut scaled = file.clone();
+            scaled.scale_schedule(iterations);
+            let what = format!("{name} at {iterations} iterations");
+            assert_eq!(scaled.train.iterations, iterations, "{what}");
+            assert_eq!(scaled.densify.interval, file.densify.interval, "{what}");
+            for (new, old) in [
+                (scaled.densify.from_iter, file.densify.from_iter),
+                (scaled.densify.until_iter, file.densify.until_iter),
+            ] {
+                let gap = (fraction(new, &scaled) - fraction(old, &file)).abs();
+                assert!(gap <= 1.0 / iterations as f64, "{what}: {new} vs {old}");
+            }
+            let late = resets(&scaled)
+                .into_iter()
+                .filter(|&i| i as f64 > 0.9 * iterations as f64)
+                .collect::<Vec<_>>();
+            assert!(late.is_empty(), "{what}: resets at {late:?}");
+            let (before, after) = (resets(&file).len(), resets(&scaled).len());
+            assert!(
+                before.abs_diff(after) <= 1,
+                "{what}: {before} → {after} resets"
+            );
+        }
+    }
+    // The guard alone: a reset due at the very end of a run is skipped.
+    let mut config = SceneConfig::new("late", DataSource::Synthetic(demo_scene()));
+    config.train.iterations = 3000;
+    config.densify.until_iter = 3000;
+    config.densify.opacity_reset_interval = 1000;
+    let due = |i| is_opacity_reset(&config.densify, 3000, i);
+    assert!(due(1000) && due(2000) && !due(3000) && !due(2500));
+}
+
+/// The synthetic TAD scene (`scenes/tad.ron`) exercises what VAD, TAT and TOW are for — at
+/// least 150 frames and at least four objects that each live for at most 30 % of the sequence
+/// while crossing at least one unit of space — and it is deterministic: built twice (here at
+/// 40×30), every image and dynamic mask is identical.
+#[test]
+fn synthetic_tad_scene_is_short_lived_fast_and_deterministic() {
+    use tadgs::scene::load_scene;
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/tad.ron");
+    let config = load_scene(std::path::Path::new(path)).expect("tad scene loads");
+    let DataSource::Synthetic(mut synthetic) = config.data else {
+        panic!("scenes/tad.ron is a synthetic scene");
+    };
+    assert!(synthetic.frames >= 150);
+    let short_fast = synthetic
+        .objects
+        .iter()
+        .filter(|o| {
+            let Some((start, end)) = o.visible else {
+                return false;
+            };
+            let travel = o.position_at(start).distance(o.position_at(end));
+            end - start <= 0.3 && travel >= 1.0
+        })
+        .count();
+    assert!(short_fast >= 4, "{short_fast} short-lived fast objects");
+
+    (synthetic.width, synthetic.height, synthetic.supersample) = (40, 30, 1);
+    let first = synthetic.build().expect("tad scene builds");
+    let second = synthetic.build().expect("tad scene builds");
+    assert_eq!(first.frame_count, synthetic.frames);
+    for (a, b) in first
+        .train
+        .iter()
+        .chain(&first.test)
+        .zip(second.train.iter().chain(&second.test))
+    {
+        assert_eq!((a.camera, a.frame), (b.camera, b.frame));
+        assert!(a.image == b.image, "camera {} frame {}", a.camera, a.frame);
+        assert_eq!(a.dynamic_mask, b.dynamic_mask);
+    }
+    let dynamic: usize = first
+        .test
+        .iter()
+        .filter_map(|v| v.dynamic_mask.as_ref())
+        .map(|m| m.iter().filter(|&&d| d).count())
+        .sum();
+    assert!(dynamic > 0, "the held-out camera sees the moving objects");
+}

@@ -42,7 +42,10 @@ pub struct TrainCommand {
     /// (the checkpoint holds the scene).
     #[arg(required_unless_present = "resume")]
     pub scene: Option<PathBuf>,
-    /// Override the number of iterations (train.iterations).
+    /// Train N iterations (train.iterations). The scene file's schedule stretches with it:
+    /// densification window, opacity-reset and SH-increase intervals are scaled by
+    /// N / train.iterations (the densification interval is kept); values given with --set
+    /// are kept as given.
     #[arg(long, value_name = "N")]
     pub iterations: Option<u32>,
     /// Override any scene setting, e.g. --set densify.vad=false --set model.tow.rho=0.7.
@@ -111,7 +114,22 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
         }
     };
     if let Some(n) = args.iterations {
-        set_override(&mut config, "train.iterations", &n.to_string())?;
+        let from = config.train.iterations;
+        config.scale_schedule(n);
+        // What --set names explicitly is kept as given.
+        apply_overrides(&mut config, &args.overrides)?;
+        if n != from {
+            tracing::info!(
+                "--iterations {n}: the schedule of {from} iterations stretched ×{:.3}: \
+                 densification after iteration {} until {}, opacity reset every {}, SH degree \
+                 up every {}",
+                n as f64 / from.max(1) as f64,
+                config.densify.from_iter,
+                config.densify.until_iter,
+                config.densify.opacity_reset_interval,
+                config.train.sh_increase_interval,
+            );
+        }
     }
     if let Some(n) = args.checkpoint_every {
         config.train.checkpoint_interval = n;

@@ -50,6 +50,27 @@ impl SceneConfig {
     }
 }
 
+impl SceneConfig {
+    /// Sets the run length to `iterations` and stretches every iteration-counted part of the
+    /// schedule by the same factor, so a shorter or longer run keeps the scene file's shape:
+    /// densification starts and ends at the same fractions of the run, opacity resets and SH
+    /// degree increases come as often relative to its length. The densification interval is
+    /// kept: it is the number of views each step's statistics gather, not a share of the run.
+    pub fn scale_schedule(&mut self, iterations: u32) {
+        let old = self.train.iterations.max(1) as f64;
+        let factor = iterations as f64 / old;
+        let scale = |n: u32| (n as f64 * factor).round().min(u32::MAX as f64) as u32;
+        self.densify.from_iter = scale(self.densify.from_iter);
+        self.densify.until_iter = scale(self.densify.until_iter);
+        self.densify.opacity_reset_interval = match self.densify.opacity_reset_interval {
+            0 => 0,
+            n => scale(n).max(1),
+        };
+        self.train.sh_increase_interval = scale(self.train.sh_increase_interval).max(1);
+        self.train.iterations = iterations;
+    }
+}
+
 fn default_output() -> String {
     "runs/out".into()
 }
