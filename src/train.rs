@@ -11,7 +11,7 @@ use crate::components::{
     Color, ColorRest, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
     spawn_gaussians,
 };
-use crate::data::carve::{self, CarveError};
+use crate::data::carve::{self, CarveError, CarvedPoints};
 use crate::data::init::{
     InitPoint, anchor_frames, nearest_neighbour_scales, random_points_in_view, scene_extent,
 };
@@ -159,12 +159,16 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
     let settings = world.resource::<Settings>().clone();
     let dataset = world.resource::<TrainingViews>().0.clone();
     let init = &scene.init;
-    let temporal_scale = init_temporal_raw(
-        settings.opacity,
-        init.lifespan_half_frames,
-        dataset.frame_count,
-        &settings.warp,
-    );
+    let temporal_raw = |half_frames: f32| {
+        init_temporal_raw(
+            settings.opacity,
+            half_frames,
+            dataset.frame_count,
+            &settings.warp,
+        )
+    };
+    let temporal_scale = temporal_raw(init.lifespan_half_frames);
+    let background_scale = init.background_lifespan_half_frames.map(temporal_raw);
     let file_points = match &init.method {
         InitMethod::PointCloud(path) => Some(read_point_cloud(std::path::Path::new(path))?),
         _ => None,
@@ -172,41 +176,60 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(scene.train.seed ^ 0x5eed);
     let mut spawned = 0;
     for frame in anchor_frames(dataset.frame_count, init.anchor_spacing) {
-        let points = match &file_points {
-            Some(points) => points.clone(),
+        let mut points = match &file_points {
+            Some(points) => CarvedPoints {
+                foreground: points.clone(),
+                background: Vec::new(),
+            },
             None => anchor_points(&dataset, frame, scene, &mut rng)?,
         };
-        if points.is_empty() {
+        // Without a lifespan of their own, background points are spawned with the others
+        // (their nearest neighbours, and so their scales, looked up among all points).
+        let groups = match background_scale {
+            Some(scale) => vec![
+                (points.foreground, temporal_scale),
+                (points.background, scale),
+            ],
+            None => {
+                points.foreground.append(&mut points.background);
+                vec![(points.foreground, temporal_scale)]
+            }
+        };
+        if groups.iter().all(|(points, _)| points.is_empty()) {
             return Err(InitError::Empty { frame });
         }
-        spawned += points.len();
-        spawn_points(
-            world,
-            scene.model.sh_degree,
-            &points,
-            dataset.frame_time(frame),
-            temporal_scale,
-            init.opacity,
-        );
+        for (points, scale) in groups {
+            spawned += points.len();
+            spawn_points(
+                world,
+                scene.model.sh_degree,
+                &points,
+                dataset.frame_time(frame),
+                scale,
+                init.opacity,
+            );
+        }
     }
     Ok(spawned)
 }
 
-/// The initial points of one anchor frame by the scene's method (not a point-cloud file).
+/// The initial points of one anchor frame by the scene's method (not a point-cloud file);
+/// only carving against foreground masks tells background points apart.
 fn anchor_points(
     dataset: &Dataset,
     frame: usize,
     scene: &SceneConfig,
     rng: &mut rand_chacha::ChaCha8Rng,
-) -> Result<Vec<InitPoint>, InitError> {
+) -> Result<CarvedPoints, InitError> {
     let init = &scene.init;
     let count = init.points_per_anchor;
-    let random = |rng: &mut rand_chacha::ChaCha8Rng| {
-        random_points_in_view(&dataset.training_rig(), count, rng)
+    let random = |rng: &mut rand_chacha::ChaCha8Rng| CarvedPoints {
+        foreground: random_points_in_view(&dataset.training_rig(), count, rng),
+        background: Vec::new(),
     };
     match init.method {
         InitMethod::Random => Ok(random(rng)),
-        InitMethod::Carve => Ok(carve::initial_points(
+        InitMethod::Carve => Ok(carve::carved_points(
             dataset,
             frame,
             count,
@@ -214,7 +237,7 @@ fn anchor_points(
             rng,
         )?),
         InitMethod::Auto if carve::has_masks(dataset, frame) => {
-            match carve::initial_points(dataset, frame, count, &init.carve, rng) {
+            match carve::carved_points(dataset, frame, count, &init.carve, rng) {
                 Ok(points) => Ok(points),
                 Err(error) => {
                     tracing::warn!("anchor frame {frame}: {error}; using random points instead");
@@ -222,7 +245,13 @@ fn anchor_points(
                 }
             }
         }
-        InitMethod::Auto => Ok(dataset.points.clone().unwrap_or_else(|| random(rng))),
+        InitMethod::Auto => Ok(match dataset.points.clone() {
+            Some(foreground) => CarvedPoints {
+                foreground,
+                background: Vec::new(),
+            },
+            None => random(rng),
+        }),
         InitMethod::PointCloud(_) => unreachable!("point-cloud files are read once by the caller"),
     }
 }

@@ -986,3 +986,46 @@ fn damaged_panoptic_image_never_panics() {
     let dir = synthetic_panoptic();
     fuzz_file(&dir, "ims/4/000000.png", || panoptic::load(&source(&dir)));
 }
+
+/// With `init.background_lifespan_half_frames`, the carved background points of a real capture
+/// start with that lifespan and the hull points with `lifespan_half_frames`: on two Panoptic
+/// frames (one anchor each), exactly the background share of each anchor's points gets the
+/// long temporal scale (its ψ smaller, i.e. a longer life, than the hull points').
+#[test]
+fn panoptic_background_points_get_their_own_lifespan() {
+    use tadgs::components::Temporal;
+    use tadgs::scene::{DataSource, SceneConfig};
+    let Some(dir) = panoptic_dir() else { return };
+    let mut scene = SceneConfig::new(
+        "background-lifespan",
+        DataSource::Panoptic(PanopticSource {
+            frames: Some(2),
+            downscale: 4,
+            ..PanopticSource::new(dir)
+        }),
+    );
+    scene.init.anchor_spacing = 1;
+    scene.init.points_per_anchor = 1000;
+    scene.init.background_lifespan_half_frames = Some(150.0);
+    let dataset = std::sync::Arc::new(tadgs::data::load(&scene.data).unwrap());
+    let mut trainer = tadgs::train::Trainer::try_new(&scene, dataset).unwrap();
+    let world = &mut trainer.world;
+    let scales: Vec<f32> = world
+        .query::<&Temporal>()
+        .iter(world)
+        .map(|t| t.scale[0])
+        .collect();
+    assert_eq!(scales.len(), 2000);
+    let long = scales.iter().fold(f32::INFINITY, |a, &b| a.min(b));
+    let short = scales.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+    assert!(long < short, "background log ψ {long} vs hull {short}");
+    let background = scales.iter().filter(|&&s| s == long).count();
+    let hull = scales.iter().filter(|&&s| s == short).count();
+    assert_eq!(background + hull, 2000, "only the two initial lifespans");
+    // The carve settings' foreground fraction is one half; background points fall short of
+    // their half only where too few are photo-consistent.
+    assert!(
+        (200..=1000).contains(&background),
+        "{background} background points"
+    );
+}

@@ -349,6 +349,9 @@ fn validate_names_each_bad_field() {
         ("init.lifespan_half_frames", |c| {
             c.init.lifespan_half_frames = f32::NAN
         }),
+        ("init.background_lifespan_half_frames", |c| {
+            c.init.background_lifespan_half_frames = Some(0.0)
+        }),
     ];
     for (expected, edit) in cases {
         let mut c = minimal_config();

@@ -1112,21 +1112,50 @@ pub fn initial_points(
     settings: &CarveSettings,
     rng: &mut impl Rng,
 ) -> Result<Vec<InitPoint>, CarveError> {
+    let mut carved = carved_points(dataset, frame, count, settings, rng)?;
+    carved.foreground.append(&mut carved.background);
+    Ok(carved.foreground)
+}
+
+/// [`initial_points`] kept apart: the points on the visual hull and the background points.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CarvedPoints {
+    /// On the visual hull of the masks (the moving foreground), or every point of a
+    /// photo-consistency carving (which does not tell foreground from background).
+    pub foreground: Vec<InitPoint>,
+    /// Photo-consistent points outside the hull: the static background.
+    pub background: Vec<InitPoint>,
+}
+
+/// The points of [`initial_points`], the hull's and the background's apart.
+pub fn carved_points(
+    dataset: &Dataset,
+    frame: usize,
+    count: usize,
+    settings: &CarveSettings,
+    rng: &mut impl Rng,
+) -> Result<CarvedPoints, CarveError> {
     settings.validate()?;
     if !has_masks(dataset, frame) {
         tracing::info!(frame, "no foreground masks; carving by photo-consistency");
-        return carve_photo_consistent(dataset, frame, count, settings, rng);
+        let foreground = carve_photo_consistent(dataset, frame, count, settings, rng)?;
+        return Ok(CarvedPoints {
+            foreground,
+            background: Vec::new(),
+        });
     }
     let views = checked_views(dataset, frame, settings, masked_views)?;
     let grid = visual_hull_of(&views, frame, settings)?;
     let foreground_count =
         ((count as f32 * settings.foreground_fraction).round() as usize).min(count);
-    let mut points = sample_hull(&views, &grid, foreground_count, settings, &mut *rng);
+    let mut foreground = sample_hull(&views, &grid, foreground_count, settings, &mut *rng);
     let background = background_points_of(&views, count - foreground_count, settings, &mut *rng);
     let shortfall = count - foreground_count - background.len();
-    points.extend(background);
-    points.extend(sample_hull(&views, &grid, shortfall, settings, rng));
-    Ok(points)
+    foreground.extend(sample_hull(&views, &grid, shortfall, settings, rng));
+    Ok(CarvedPoints {
+        foreground,
+        background,
+    })
 }
 
 #[cfg(test)]
@@ -1320,6 +1349,33 @@ mod tests {
         // Hull points are red, background points grey.
         let red = points.iter().filter(|p| p.color[0] > 0.8).count();
         assert_eq!(red, 100);
+    }
+
+    /// `carved_points` keeps the two kinds apart: every hull point is red (on the sphere),
+    /// every background point grey (outside it), and together they are `initial_points`.
+    #[test]
+    fn carved_points_keep_hull_and_background_apart() {
+        let scene = sphere_scene();
+        let settings = CarveSettings {
+            foreground_fraction: 0.25,
+            ..test_settings()
+        };
+        let carved = carved_points(&scene.dataset, 0, 400, &settings, &mut rng()).unwrap();
+        assert_eq!(
+            (carved.foreground.len(), carved.background.len()),
+            (100, 300)
+        );
+        assert!(carved.foreground.iter().all(|p| p.color[0] > 0.8));
+        assert!(carved.background.iter().all(|p| p.color[0] < 0.6));
+        for p in &carved.background {
+            assert!(p.position.distance(scene.centre) > scene.radius);
+        }
+        let mut all = initial_points(&scene.dataset, 0, 400, &settings, &mut rng()).unwrap();
+        let mut joined = [carved.foreground, carved.background].concat();
+        let key = |p: &InitPoint| p.position.to_array().map(f32::to_bits);
+        all.sort_by_key(key);
+        joined.sort_by_key(key);
+        assert_eq!(all, joined);
     }
 
     /// The same seed gives the same cloud.

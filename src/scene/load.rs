@@ -374,6 +374,9 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
     nonzero("init.points_per_anchor", i.points_per_anchor)?;
     in_range("init.opacity", i.opacity, 0.0, false, 1.0, false)?;
     positive("init.lifespan_half_frames", i.lifespan_half_frames)?;
+    if let Some(frames) = i.background_lifespan_half_frames {
+        positive("init.background_lifespan_half_frames", frames)?;
+    }
     if let Err(error) = i.carve.validate() {
         return fail("init.carve", error.to_string());
     }

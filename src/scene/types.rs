@@ -121,6 +121,11 @@ pub struct InitConfig {
     pub opacity: f32,
     /// Half-width, in frames, over which a new Gaussian keeps σ(t)/σ^s > 0.2.
     pub lifespan_half_frames: f32,
+    /// The same for the carved background points (outside the visual hull of the foreground
+    /// masks: the static part of the scene), so they can live long enough to be trained by
+    /// every frame's views instead of one anchor's share; `None` uses `lifespan_half_frames`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub background_lifespan_half_frames: Option<f32>,
 }
 
 impl Default for InitConfig {
@@ -132,6 +137,7 @@ impl Default for InitConfig {
             points_per_anchor: 2000,
             opacity: 0.1,
             lifespan_half_frames: 25.0,
+            background_lifespan_half_frames: None,
         }
     }
 }
