@@ -106,8 +106,16 @@ impl MemoryEstimate {
     pub fn new(scene: &SceneConfig, dataset: &Dataset) -> Self {
         let (width, height) = largest_camera(dataset);
         let anchors = anchor_frames(dataset.frame_count, scene.init.anchor_spacing).len();
+        // Coarse-to-fine keeps a downscaled copy of the views (at most this much).
+        let factor = u64::from(scene.train.coarse_downscale.max(1));
+        let images = dataset.memory_bytes() as u64;
         Self {
-            images: dataset.memory_bytes() as u64,
+            images: images
+                + if factor > 1 {
+                    images / (factor * factor)
+                } else {
+                    0
+                },
             pixel_buffers: (width as u64) * (height as u64) * BYTES_PER_PIXEL as u64,
             per_gaussian: (bytes_per_gaussian(scene.model.sh_degree) as f64 * HEADROOM).ceil()
                 as u64,

@@ -103,6 +103,28 @@ pub struct DensifyReport {
 #[derive(Resource, Clone)]
 pub struct TrainingViews(pub Arc<Dataset>);
 
+/// Coarse-to-fine training (`train.coarse_downscale`): the training views at a lower
+/// resolution, used by iterations up to `until`; later ones use [`TrainingViews`].
+#[derive(Resource, Clone, Debug)]
+pub struct CoarseViews {
+    /// The downscaled training views and cameras (no held-out views).
+    pub views: Arc<Dataset>,
+    /// Last iteration trained on them.
+    pub until: u32,
+}
+
+/// The dataset whose training views iteration `iteration` trains on.
+pub fn views_at<'a>(
+    full: &'a TrainingViews,
+    coarse: Option<&'a CoarseViews>,
+    iteration: u32,
+) -> &'a Dataset {
+    match coarse {
+        Some(coarse) if iteration <= coarse.until => &coarse.views,
+        _ => &full.0,
+    }
+}
+
 /// The view of the current iteration.
 #[derive(Resource, Clone, Copy, Debug)]
 pub struct ViewSample {

@@ -67,6 +67,13 @@ pub fn insert_resources(
         frame: first.map_or(0, |v| v.frame),
         time: first.map_or(0.0, |v| v.time),
     };
+    let train = &scene.train;
+    if train.coarse_downscale > 1 && train.coarse_until > 0 {
+        world.insert_resource(CoarseViews {
+            views: Arc::new(dataset.downscaled_training_views(train.coarse_downscale)),
+            until: train.coarse_until,
+        });
+    }
     world.insert_resource(TrainingViews(dataset));
     world.insert_resource(ViewOrder::default());
     world.insert_resource(Rng::seeded(scene.train.seed));

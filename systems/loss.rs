@@ -3,12 +3,15 @@
 use bevy_ecs::prelude::*;
 
 use crate::metrics::loss::training_loss;
-use crate::resources::{LossImage, Settings, SplatBuffers, TrainState, TrainingViews, ViewSample};
+use crate::resources::{
+    CoarseViews, LossImage, Settings, SplatBuffers, TrainState, TrainingViews, ViewSample, views_at,
+};
 
 /// Compares the render with the ground-truth image of the sampled view.
 pub fn loss(
     settings: Res<Settings>,
     views: Res<TrainingViews>,
+    coarse: Option<Res<CoarseViews>>,
     sample: Res<ViewSample>,
     buffers: Res<SplatBuffers>,
     mut loss: ResMut<LossImage>,
@@ -16,7 +19,8 @@ pub fn loss(
 ) {
     let index = sample.view.expect("training views come from the dataset");
     let loss = &mut *loss;
-    views.0.train[index].copy_image_into(&mut loss.target);
+    let dataset = views_at(&views, coarse.as_deref(), state.iteration);
+    dataset.train[index].copy_image_into(&mut loss.target);
     loss.value = training_loss(
         &mut loss.scratch,
         &buffers.render.image,

@@ -3,7 +3,9 @@
 use bevy_ecs::prelude::*;
 use rand::seq::SliceRandom;
 
-use crate::resources::{Rng, Settings, TrainState, TrainingViews, ViewOrder, ViewSample};
+use crate::resources::{
+    CoarseViews, Rng, Settings, TrainState, TrainingViews, ViewOrder, ViewSample, views_at,
+};
 
 /// Counts the iteration and raises the SH degree by one every `sh_increase_interval` iterations.
 pub fn advance_iteration(settings: Res<Settings>, mut state: ResMut<TrainState>) {
@@ -14,14 +16,17 @@ pub fn advance_iteration(settings: Res<Settings>, mut state: ResMut<TrainState>)
     }
 }
 
-/// Samples a training view uniformly without replacement within an epoch.
+/// Samples a training view uniformly without replacement within an epoch (from the coarse
+/// views while coarse-to-fine training is in its coarse stage).
 pub fn sample_view(
     views: Res<TrainingViews>,
+    coarse: Option<Res<CoarseViews>>,
+    state: Res<TrainState>,
     mut order: ResMut<ViewOrder>,
     mut rng: ResMut<Rng>,
     mut sample: ResMut<ViewSample>,
 ) {
-    let dataset = &views.0;
+    let dataset = views_at(&views, coarse.as_deref(), state.iteration);
     if order.next >= order.order.len() {
         order.order.clear();
         order.order.extend(0..dataset.train.len());

@@ -349,6 +349,8 @@ fn validate_names_each_bad_field() {
         ("init.lifespan_half_frames", |c| {
             c.init.lifespan_half_frames = f32::NAN
         }),
+        ("train.coarse_downscale", |c| c.train.coarse_downscale = 0),
+        ("train.coarse_until", |c| c.train.coarse_downscale = 2),
         ("init.background_lifespan_half_frames", |c| {
             c.init.background_lifespan_half_frames = Some(0.0)
         }),

@@ -395,3 +395,43 @@ fn synthetic_tad_scene_is_short_lived_fast_and_deterministic() {
         .sum();
     assert!(dynamic > 0, "the held-out camera sees the moving objects");
 }
+
+/// Coarse-to-fine (`train.coarse_downscale: 2`, `coarse_until: 4`): iterations 1–4 render and
+/// compare at half the size (48×36 → 24×18) against the box-filtered view, iteration 5 onwards
+/// at the data's own size, and the loss still goes down over the whole run.
+#[test]
+fn coarse_to_fine_switches_resolution_after_coarse_until() {
+    use tadgs::resources::LossImage;
+    let (mut config, dataset) = tiny_scene();
+    config.train.coarse_downscale = 2;
+    config.train.coarse_until = 4;
+    let mut trainer = Trainer::new(&config, dataset.clone());
+    let before = fixed_view_loss(&mut trainer, &dataset);
+    let target_size = |trainer: &Trainer| {
+        let target = &trainer.world.resource::<LossImage>().target;
+        (target.width, target.height)
+    };
+    for _ in 0..4 {
+        trainer.step();
+        assert_eq!(target_size(&trainer), (24, 18));
+    }
+    trainer.step();
+    assert_eq!(target_size(&trainer), (48, 36));
+    for _ in 0..55 {
+        trainer.step();
+    }
+    let after = fixed_view_loss(&mut trainer, &dataset);
+    assert!(after < 0.8 * before, "loss before {before}, after {after}");
+
+    let coarse = dataset.downscaled_training_views(2);
+    let (view, full) = (&coarse.train[3], &dataset.train[3]);
+    assert_eq!(view.image.dimensions(), (24, 18));
+    let expected: u32 = [(2, 2), (3, 2), (2, 3), (3, 3)]
+        .iter()
+        .map(|&(x, y)| u32::from(full.image.get_pixel(x, y).0[1]))
+        .sum();
+    assert!((u32::from(view.image.get_pixel(1, 1).0[1]) * 4).abs_diff(expected) <= 4);
+    let camera = coarse.cameras[view.camera];
+    assert_eq!((camera.width, camera.height), (24, 18));
+    assert_eq!(camera.fx, dataset.cameras[view.camera].fx / 2.0);
+}

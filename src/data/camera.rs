@@ -25,6 +25,21 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// The same camera with an image `factor` times smaller in each direction (the size
+    /// rounded down, as [`crate::io::image::box_downscale`] crops the remainder).
+    pub fn downscaled(&self, factor: u32) -> Self {
+        let scale = factor.max(1) as f32;
+        Self {
+            width: self.width / factor.max(1),
+            height: self.height / factor.max(1),
+            fx: self.fx / scale,
+            fy: self.fy / scale,
+            cx: self.cx / scale,
+            cy: self.cy / scale,
+            world_to_camera: self.world_to_camera,
+        }
+    }
+
     /// Camera centre in world coordinates.
     pub fn center(&self) -> Vec3 {
         self.world_to_camera.inverse().transform_point3(Vec3::ZERO)

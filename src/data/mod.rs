@@ -99,6 +99,40 @@ impl Dataset {
         distinct_cameras(&self.train)
     }
 
+    /// The training views (images box-filtered, masks sampled at block centres) and every
+    /// camera at a resolution `factor` times lower, without the held-out views: what a
+    /// coarse-to-fine run trains on first.
+    pub fn downscaled_training_views(&self, factor: u32) -> Dataset {
+        use rayon::prelude::*;
+        let cameras: Vec<Camera> = self.cameras.iter().map(|c| c.downscaled(factor)).collect();
+        let train = self
+            .train
+            .par_iter()
+            .map(|view| {
+                let (width, height) = view.image.dimensions();
+                let mask = |m: &Option<Vec<bool>>| {
+                    m.as_ref()
+                        .map(|m| panoptic::downscale_mask(m, width, height, factor))
+                };
+                View {
+                    camera: view.camera,
+                    frame: view.frame,
+                    time: view.time,
+                    image: crate::io::image::box_downscale(&view.image, factor),
+                    dynamic_mask: mask(&view.dynamic_mask),
+                    foreground: mask(&view.foreground),
+                }
+            })
+            .collect();
+        Dataset {
+            cameras,
+            frame_count: self.frame_count,
+            train,
+            test: Vec::new(),
+            points: self.points.clone(),
+        }
+    }
+
     /// The cameras of the training views, in increasing index order.
     pub fn training_rig(&self) -> Vec<Camera> {
         self.train_cameras()

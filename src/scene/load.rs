@@ -287,6 +287,14 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
     nonzero("train.iterations", t.iterations)?;
     in_range("train.lambda_dssim", t.lambda_dssim, 0.0, true, 1.0, true)?;
     positive("train.near_plane", t.near_plane)?;
+    nonzero("train.coarse_downscale", t.coarse_downscale)?;
+    if t.coarse_downscale > 1 && t.coarse_until == 0 {
+        return fail(
+            "train.coarse_until",
+            "is 0, so no iteration would use train.coarse_downscale: give the last coarse \
+             iteration, or set coarse_downscale to 1",
+        );
+    }
     for (i, &c) in t.background.iter().enumerate() {
         if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
             return fail(

@@ -56,6 +56,7 @@ impl SceneConfig {
     /// densification starts and ends at the same fractions of the run, opacity resets and SH
     /// degree increases come as often relative to its length. The densification interval is
     /// kept: it is the number of views each step's statistics gather, not a share of the run.
+    /// The coarse-to-fine switch (`train.coarse_until`) moves with the run too.
     pub fn scale_schedule(&mut self, iterations: u32) {
         let old = self.train.iterations.max(1) as f64;
         let factor = iterations as f64 / old;
@@ -67,6 +68,7 @@ impl SceneConfig {
             n => scale(n).max(1),
         };
         self.train.sh_increase_interval = scale(self.train.sh_increase_interval).max(1);
+        self.train.coarse_until = scale(self.train.coarse_until);
         self.train.iterations = iterations;
     }
 }
@@ -367,6 +369,13 @@ pub struct TrainConfig {
     pub near_plane: f32,
     /// Raise the SH degree by one every this many iterations.
     pub sh_increase_interval: u32,
+    /// Coarse-to-fine: train the first `coarse_until` iterations on the training views
+    /// downscaled by this factor (1 = off), then at the data's own resolution. The cheap
+    /// coarse iterations see every view more often; the fine ones sharpen the detail that the
+    /// evaluation at full resolution scores.
+    pub coarse_downscale: u32,
+    /// Last iteration trained at the coarse resolution (see `coarse_downscale`).
+    pub coarse_until: u32,
     /// Learning rates per parameter group.
     pub lr: LearningRates,
     /// Which backend renders and back-propagates.
@@ -387,6 +396,8 @@ impl Default for TrainConfig {
             lambda_dssim: 0.2,
             near_plane: 0.01,
             sh_increase_interval: 1000,
+            coarse_downscale: 1,
+            coarse_until: 0,
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
             eval_interval: 0,
