@@ -184,10 +184,7 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
     let mut spawned = 0;
     for frame in anchor_frames(dataset.frame_count, init.anchor_spacing) {
         let mut points = match &file_points {
-            Some(points) => CarvedPoints {
-                foreground: points.clone(),
-                background: Vec::new(),
-            },
+            Some(points) => CarvedPoints::undivided(points.clone()),
             None => anchor_points(&dataset, frame, scene, &mut rng)?,
         };
         // Without a lifespan of their own, background points are spawned with the others
@@ -230,9 +227,8 @@ fn anchor_points(
 ) -> Result<CarvedPoints, InitError> {
     let init = &scene.init;
     let count = init.points_per_anchor;
-    let random = |rng: &mut rand_chacha::ChaCha8Rng| CarvedPoints {
-        foreground: random_points_in_view(&dataset.training_rig(), count, rng),
-        background: Vec::new(),
+    let random = |rng: &mut rand_chacha::ChaCha8Rng| {
+        CarvedPoints::undivided(random_points_in_view(&dataset.training_rig(), count, rng))
     };
     match init.method {
         InitMethod::Random => Ok(random(rng)),
@@ -253,10 +249,7 @@ fn anchor_points(
             }
         }
         InitMethod::Auto => Ok(match dataset.points.clone() {
-            Some(foreground) => CarvedPoints {
-                foreground,
-                background: Vec::new(),
-            },
+            Some(points) => CarvedPoints::undivided(points),
             None => random(rng),
         }),
         InitMethod::PointCloud(_) => unreachable!("point-cloud files are read once by the caller"),

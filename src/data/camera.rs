@@ -28,10 +28,11 @@ impl Camera {
     /// The same camera with an image `factor` times smaller in each direction (the size
     /// rounded down, as [`crate::io::image::box_downscale`] crops the remainder).
     pub fn downscaled(&self, factor: u32) -> Self {
-        let scale = factor.max(1) as f32;
+        let factor = factor.max(1);
+        let scale = factor as f32;
         Self {
-            width: self.width / factor.max(1),
-            height: self.height / factor.max(1),
+            width: self.width / factor,
+            height: self.height / factor,
             fx: self.fx / scale,
             fy: self.fy / scale,
             cx: self.cx / scale,

@@ -1127,6 +1127,17 @@ pub struct CarvedPoints {
     pub background: Vec<InitPoint>,
 }
 
+impl CarvedPoints {
+    /// Points whose source does not tell foreground from background (random points, a point
+    /// cloud, a photo-consistency carving): all counted as foreground.
+    pub fn undivided(points: Vec<InitPoint>) -> Self {
+        Self {
+            foreground: points,
+            background: Vec::new(),
+        }
+    }
+}
+
 /// The points of [`initial_points`], the hull's and the background's apart.
 pub fn carved_points(
     dataset: &Dataset,
@@ -1138,11 +1149,8 @@ pub fn carved_points(
     settings.validate()?;
     if !has_masks(dataset, frame) {
         tracing::info!(frame, "no foreground masks; carving by photo-consistency");
-        let foreground = carve_photo_consistent(dataset, frame, count, settings, rng)?;
-        return Ok(CarvedPoints {
-            foreground,
-            background: Vec::new(),
-        });
+        let points = carve_photo_consistent(dataset, frame, count, settings, rng)?;
+        return Ok(CarvedPoints::undivided(points));
     }
     let views = checked_views(dataset, frame, settings, masked_views)?;
     let grid = visual_hull_of(&views, frame, settings)?;
