@@ -555,3 +555,87 @@ fn gpu_trained_run_saves_evaluates_resumes_and_exports() {
     run_ok(&["-q", "render", &straight, "--frames", "1", "-o", &png]);
     assert!(image::open(&png).unwrap().width() > 0);
 }
+
+fn run_fails(args: &[&str]) -> String {
+    let out = tadgs(args);
+    assert_eq!(out.status.code(), Some(1), "{args:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A new run never lands on another one: `train` into a folder holding an unfinished run is
+/// refused (naming the checkpoint's iteration and the ways out) and leaves the checkpoint
+/// untouched; the same over a finished run; `--force` replaces the run; `--resume` into its
+/// own folder goes on.
+#[test]
+fn training_into_a_folder_with_a_run_is_refused_unless_forced() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let (scene, run) = (scene.to_str().unwrap(), dir.path().join("run"));
+    let run_arg = run.to_str().unwrap();
+    let iteration = || {
+        tadgs::io::checkpoint::Checkpoint::load(&run.join("checkpoint"))
+            .unwrap()
+            .state
+            .iteration
+    };
+    run_ok(&["-q", "train", scene, "-o", run_arg, "--until", "20"]);
+    let stderr = run_fails(&["-q", "train", scene, "-o", run_arg, "--until", "10"]);
+    assert!(
+        stderr.contains("an unfinished run (checkpoint at iteration 20 of 40)")
+            && stderr.contains("--resume")
+            && stderr.contains("--force"),
+        "{stderr}"
+    );
+    assert_eq!(iteration(), 20);
+    run_ok(&["-q", "train", "--resume", run_arg, "--no-report", "--no-renders"]);
+    assert_eq!(iteration(), 40);
+    let stderr = run_fails(&["-q", "train", scene, "-o", run_arg]);
+    assert!(stderr.contains("a finished run"), "{stderr}");
+    run_ok(&["-q", "train", scene, "-o", run_arg, "--force", "--until", "10"]);
+    assert_eq!(iteration(), 10);
+    assert!(
+        !run.join("model.safetensors").exists() && !run.join("metrics.json").exists(),
+        "--force removes the old run's model and metrics"
+    );
+}
+
+/// While one process holds a run folder (an OS lock on its lock file), `train` and `eval`
+/// into it fail with a clear error; once released, they work.
+#[test]
+fn a_locked_run_folder_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let run = dir.path().join("run");
+    let run_arg = run.to_str().unwrap();
+    std::fs::create_dir(&run).unwrap();
+    let lock = std::fs::File::create(run.join(".tadgs.lock")).unwrap();
+    lock.lock().unwrap();
+    let stderr = run_fails(&["-q", "train", scene.to_str().unwrap(), "-o", run_arg]);
+    assert!(
+        stderr.contains("in use by another tadgs process"),
+        "{stderr}"
+    );
+    assert!(!run.join("scene.ron").exists(), "nothing written");
+    drop(lock);
+    run_ok(&["-q", "train", scene.to_str().unwrap(), "-o", run_arg, "--no-report"]);
+}
+
+/// `eval` of a run whose scene no longer matches its model (other frame count, other
+/// deformation settings) fails naming the difference and leaves the metrics as they were.
+#[test]
+fn eval_refuses_a_model_of_another_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let run = dir.path().join("run");
+    let run_arg = run.to_str().unwrap();
+    run_ok(&["-q", "train", scene.to_str().unwrap(), "-o", run_arg, "--no-report"]);
+    let metrics = std::fs::read(run.join("metrics.json")).unwrap();
+    let stderr = run_fails(&["-q", "eval", run_arg, "--set", "data.frames=4"]);
+    assert!(
+        stderr.contains("trained on 6 frames, the scene's data has 4"),
+        "{stderr}"
+    );
+    let stderr = run_fails(&["-q", "eval", run_arg, "--set", "model.tow.enabled=false"]);
+    assert!(stderr.contains("deformation settings"), "{stderr}");
+    assert_eq!(std::fs::read(run.join("metrics.json")).unwrap(), metrics);
+}

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use tadgs::data::Dataset;
 use tadgs::io::image::Image;
 use tadgs::io::model::Model;
@@ -14,6 +14,7 @@ use tadgs::report::ReportView;
 use tadgs::scene::SceneConfig;
 use tadgs::train::{Evaluation, Trainer};
 
+use super::run_folder::RunLock;
 use super::{Ui, create_dir, load_dataset, load_with_overrides, write_atomic};
 
 /// Options shared by the commands that score held-out views.
@@ -85,8 +86,18 @@ pub fn eval(args: EvalCommand, ui: Ui) -> Result<()> {
         mut eval,
     } = args;
     let config = load_with_overrides(&run.join("scene.ron"), &overrides)?;
-    let model = Model::load(&run.join("model.safetensors"))?;
+    let model_path = run.join("model.safetensors");
+    let model = Model::load(&model_path)?;
     let mut dataset = load_dataset(&config)?;
+    let mismatches = model.mismatches(&config, dataset.frame_count);
+    if !mismatches.is_empty() {
+        bail!(
+            "{} does not belong to {}: {}; nothing was written",
+            model_path.display(),
+            run.join("scene.ron").display(),
+            mismatches.join("; ")
+        );
+    }
     let output = match split {
         Split::Test => run.clone(),
         Split::Train => {
@@ -96,7 +107,7 @@ pub fn eval(args: EvalCommand, ui: Ui) -> Result<()> {
             run.join("train-split")
         }
     };
-    create_dir(&output)?;
+    let _lock = RunLock::acquire(&output)?;
     let dataset = Arc::new(dataset);
     let mut trainer = Trainer::try_from_model(&config, dataset.clone(), &model)?;
     let (report, _) = evaluate(&mut trainer, &dataset, &output, &eval, ui, 0)?;

@@ -6,6 +6,7 @@ pub mod export;
 pub mod info;
 pub mod input;
 pub mod render;
+pub mod run_folder;
 pub mod train;
 
 use std::path::Path;

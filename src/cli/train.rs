@@ -14,7 +14,8 @@ use tadgs::scene::{SceneConfig, apply_overrides, set_override};
 use tadgs::train::Trainer;
 
 use super::eval::{EvalArgs, RunSummary, evaluate, write_metrics};
-use super::{Ui, create_dir, load_dataset, load_with_overrides, scene_text, write_atomic};
+use super::run_folder::{RunLock, refuse_existing_run, remove_run_outputs, same_folder};
+use super::{Ui, load_dataset, load_with_overrides, scene_text, write_atomic};
 
 /// Held-out views shown in the run report.
 const REPORT_VIEWS: usize = 4;
@@ -60,6 +61,11 @@ pub struct TrainCommand {
     /// --iterations still apply but then the result differs from an uninterrupted run.
     #[arg(long, value_name = "DIR", conflicts_with = "scene")]
     pub resume: Option<PathBuf>,
+    /// Replace the run already in the output folder (its model, metrics, renders, checkpoint
+    /// and report; masks are kept). Without it, training into a folder that holds a run is
+    /// refused.
+    #[arg(long)]
+    pub force: bool,
     /// Write a checkpoint (<output>/checkpoint/) every N iterations, and at the end; 0 = only
     /// at the end. Overrides train.checkpoint_interval.
     #[arg(long, value_name = "N")]
@@ -84,7 +90,7 @@ pub struct TrainCommand {
 }
 
 pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
-    let (mut config, checkpoint, output) = match &args.resume {
+    let (mut config, checkpoint, output, continuing) = match &args.resume {
         None => {
             let scene = args
                 .scene
@@ -95,7 +101,7 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
                 .output
                 .clone()
                 .unwrap_or_else(|| PathBuf::from(&config.output));
-            (config, None, output)
+            (config, None, output, false)
         }
         Some(dir) => {
             let (folder, run) = if dir.join(STATE_FILE).is_file() {
@@ -109,8 +115,9 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
             let checkpoint = Checkpoint::load(&folder)?;
             let mut config = checkpoint.state.scene.clone();
             apply_overrides(&mut config, &args.overrides)?;
-            let output = args.output.clone().unwrap_or(run);
-            (config, Some(checkpoint), output)
+            let output = args.output.clone().unwrap_or_else(|| run.clone());
+            let continuing = same_folder(&run, &output);
+            (config, Some(checkpoint), output, continuing)
         }
     };
     if let Some(n) = args.iterations {
@@ -142,9 +149,21 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
         set_override(&mut config, "train.backend", kind)?;
     }
 
+    // A new run never mixes its files with another run's: checked before the (slow) data
+    // loading, and again once the folder is locked.
+    if !continuing {
+        refuse_existing_run(&output, args.force)?;
+    }
     catch_ctrl_c();
     let dataset = Arc::new(load_dataset(&config)?);
-    create_dir(&output)?;
+    let _lock = RunLock::acquire(&output)?;
+    if !continuing {
+        if args.force {
+            remove_run_outputs(&output)?;
+        } else {
+            refuse_existing_run(&output, false)?;
+        }
+    }
     write_atomic(&output.join("scene.ron"), scene_text(&config)?.as_bytes())?;
     let (mut trainer, log) = match checkpoint {
         None => {

@@ -113,6 +113,36 @@ impl Model {
         scene
     }
 
+    /// The ways in which this model does not belong to `scene` with `frame_count` frames: a
+    /// different number of frames (time would be normalised differently), other deformation
+    /// settings, or a higher SH degree than the scene allows. Empty when they match (or the
+    /// file does not record the value).
+    pub fn mismatches(&self, scene: &SceneConfig, frame_count: usize) -> Vec<String> {
+        let mut found = Vec::new();
+        if let Some(frames) = self.frame_count.filter(|&f| f != frame_count) {
+            found.push(format!(
+                "the model was trained on {frames} frames, the scene's data has {frame_count}"
+            ));
+        }
+        if let Some(config) = &self.config {
+            let mut ours = config.clone();
+            ours.sh_degree = scene.model.sh_degree;
+            if ours != scene.model {
+                found.push(
+                    "the model's deformation settings (`model` of its scene) differ from the                      scene's"
+                        .into(),
+                );
+            }
+        }
+        if self.sh_degree > scene.model.sh_degree {
+            found.push(format!(
+                "the model uses SH degree {}, the scene allows {}",
+                self.sh_degree, scene.model.sh_degree
+            ));
+        }
+        found
+    }
+
     /// Spawns every Gaussian into `world` with fresh optimiser state, with the higher SH
     /// bands when the model's degree, or that of the scene in the world's
     /// [`Settings`](crate::resources::Settings) (training on from the model), is above 0.
