@@ -587,11 +587,20 @@ fn training_into_a_folder_with_a_run_is_refused_unless_forced() {
         "{stderr}"
     );
     assert_eq!(iteration(), 20);
-    run_ok(&["-q", "train", "--resume", run_arg, "--no-report", "--no-renders"]);
+    run_ok(&[
+        "-q",
+        "train",
+        "--resume",
+        run_arg,
+        "--no-report",
+        "--no-renders",
+    ]);
     assert_eq!(iteration(), 40);
     let stderr = run_fails(&["-q", "train", scene, "-o", run_arg]);
     assert!(stderr.contains("a finished run"), "{stderr}");
-    run_ok(&["-q", "train", scene, "-o", run_arg, "--force", "--until", "10"]);
+    run_ok(&[
+        "-q", "train", scene, "-o", run_arg, "--force", "--until", "10",
+    ]);
     assert_eq!(iteration(), 10);
     assert!(
         !run.join("model.safetensors").exists() && !run.join("metrics.json").exists(),
@@ -617,7 +626,14 @@ fn a_locked_run_folder_is_refused() {
     );
     assert!(!run.join("scene.ron").exists(), "nothing written");
     drop(lock);
-    run_ok(&["-q", "train", scene.to_str().unwrap(), "-o", run_arg, "--no-report"]);
+    run_ok(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "-o",
+        run_arg,
+        "--no-report",
+    ]);
 }
 
 /// `eval` of a run whose scene no longer matches its model (other frame count, other
@@ -628,7 +644,14 @@ fn eval_refuses_a_model_of_another_scene() {
     let scene = tiny_scene(dir.path());
     let run = dir.path().join("run");
     let run_arg = run.to_str().unwrap();
-    run_ok(&["-q", "train", scene.to_str().unwrap(), "-o", run_arg, "--no-report"]);
+    run_ok(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "-o",
+        run_arg,
+        "--no-report",
+    ]);
     let metrics = std::fs::read(run.join("metrics.json")).unwrap();
     let stderr = run_fails(&["-q", "eval", run_arg, "--set", "data.frames=4"]);
     assert!(

@@ -765,6 +765,17 @@ fn write_garbage(path: &Path) {
     std::fs::write(path, b"\x89PNG\r\n\x1a\n this is not really a PNG").unwrap();
 }
 
+/// A textured 8×6 JPEG cut after two thirds of its bytes.
+fn write_truncated_jpeg(path: &Path) {
+    let img = image::RgbImage::from_fn(W, H, |x, y| {
+        image::Rgb([(x * 30) as u8, (y * 40) as u8, 99])
+    });
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut bytes, image::ImageFormat::Jpeg).unwrap();
+    let bytes = bytes.into_inner();
+    std::fs::write(path, &bytes[..bytes.len() * 2 / 3]).unwrap();
+}
+
 type Defect = fn(&Path);
 
 /// Panoptic: every defect below is rejected, and the error names the file (or entry) and
@@ -776,6 +787,11 @@ fn panoptic_malformed_corpus() {
             "corrupt image bytes",
             |root| write_garbage(&root.join("ims/6/000001.png")),
             &["cannot decode image", "6/000001.png"],
+        ),
+        (
+            "truncated JPEG (the decoder alone would fill the rest with grey)",
+            |root| write_truncated_jpeg(&root.join("ims/6/000001.png")),
+            &["truncated JPEG", "6/000001.png"],
         ),
         (
             "corrupt mask bytes",

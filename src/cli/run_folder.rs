@@ -86,7 +86,10 @@ pub fn refuse_existing_run(dir: &Path, force: bool) -> Result<()> {
         return Ok(());
     };
     if force {
-        tracing::warn!("--force: {} holds {what}; it will be replaced", dir.display());
+        tracing::warn!(
+            "--force: {} holds {what}; it will be replaced",
+            dir.display()
+        );
         return Ok(());
     }
     bail!(
@@ -155,7 +158,9 @@ mod tests {
         assert!(!dir.path().join("model.safetensors").exists());
         assert_eq!(existing_run(dir.path()), None);
         std::fs::write(dir.path().join("scene.ron"), "()").unwrap();
-        let err = refuse_existing_run(dir.path(), false).unwrap_err().to_string();
+        let err = refuse_existing_run(dir.path(), false)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("--resume") && err.contains("--force"), "{err}");
         refuse_existing_run(dir.path(), true).unwrap();
     }

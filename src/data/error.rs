@@ -124,10 +124,30 @@ pub fn open_image(path: &Path) -> Result<image::DynamicImage, DataError> {
             source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
         });
     }
-    image::open(path).map_err(|e| DataError::Image {
+    let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
+    let error = |message: String| DataError::Image {
         path: path.to_path_buf(),
-        message: e.to_string(),
-    })
+        message,
+    };
+    if is_truncated_jpeg(&bytes) {
+        return Err(error(
+            "truncated JPEG (no end-of-image marker at the end of the file)".into(),
+        ));
+    }
+    image::load_from_memory(&bytes).map_err(|e| error(e.to_string()))
+}
+
+/// Whether `bytes` are a JPEG that was cut short. The decoder fills a cut-off image with grey
+/// without an error, so this checks for the end-of-image marker (FF D9) near the end of the
+/// file (some writers pad after it). Inside the compressed data FF is always followed by 00 or
+/// a restart marker, so FF D9 there can only be the real end.
+pub(crate) fn is_truncated_jpeg(bytes: &[u8]) -> bool {
+    const PADDING: usize = 4096;
+    if !bytes.starts_with(&[0xFF, 0xD8]) {
+        return false;
+    }
+    let tail = &bytes[bytes.len().saturating_sub(PADDING)..];
+    !tail.windows(2).any(|w| w == [0xFF, 0xD9])
 }
 
 fn check_size(
@@ -166,4 +186,36 @@ pub(crate) fn check_downscale(
         ));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::is_truncated_jpeg;
+
+    fn jpeg() -> Vec<u8> {
+        let img =
+            image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([x as u8 * 4, y as u8 * 5, 7]));
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut bytes, image::ImageFormat::Jpeg).unwrap();
+        bytes.into_inner()
+    }
+
+    /// A complete JPEG (also with padding after its end marker) and a PNG pass; a JPEG cut
+    /// anywhere after its header is found.
+    #[test]
+    fn truncated_jpegs_are_found() {
+        let full = jpeg();
+        assert!(!is_truncated_jpeg(&full));
+        let mut padded = full.clone();
+        padded.extend([0u8; 1000]);
+        assert!(!is_truncated_jpeg(&padded));
+        for cut in [full.len() / 3, full.len() / 2, full.len() - 2] {
+            assert!(
+                is_truncated_jpeg(&full[..cut]),
+                "cut at {cut} of {}",
+                full.len()
+            );
+        }
+        assert!(!is_truncated_jpeg(b"\x89PNG\r\n\x1a\n"));
+    }
 }
