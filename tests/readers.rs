@@ -711,6 +711,31 @@ fn dnerf_transform_matrix_shape_is_checked() {
     );
 }
 
+/// A camera far beyond the f32 working range (translated by 1e20, in a D-NeRF file or by a
+/// synthetic scene's ring radius) is an error naming the camera and the limit, not a panic
+/// during initialisation.
+#[test]
+fn cameras_beyond_the_working_range_are_rejected() {
+    let dir = synthetic_dnerf();
+    edit_transforms(dir.path(), "train", |t| {
+        t["frames"][2]["transform_matrix"][0][3] = json!(1e20)
+    });
+    let source = tadgs::scene::DataSource::DNerf(dnerf_source(&dir));
+    let message = tadgs::data::load(&source).unwrap_err().to_string();
+    for part in ["camera 2", "1e6", "recentre"] {
+        assert!(
+            message.contains(part),
+            "`{message}` does not mention `{part}`"
+        );
+    }
+    let mut demo = tadgs::data::synthetic::demo_scene();
+    demo.cameras.radius = 1e20;
+    let message = tadgs::data::load(&tadgs::scene::DataSource::Synthetic(demo))
+        .unwrap_err()
+        .to_string();
+    assert!(message.contains("1e6"), "{message}");
+}
+
 /// A frame whose image is missing is rejected, naming the image.
 #[test]
 fn dnerf_missing_image_is_named() {

@@ -170,14 +170,42 @@ impl Dataset {
 /// Reads (or, for a synthetic scene, renders) the dataset a scene file names.
 pub fn load(source: &crate::scene::DataSource) -> Result<Dataset, DataError> {
     use crate::scene::DataSource;
-    match source {
-        DataSource::Synthetic(scene) => scene.build().map_err(|message| {
-            DataError::dataset(std::path::Path::new("synthetic scene"), message)
-        }),
-        DataSource::Panoptic(source) => panoptic::load(source),
-        DataSource::DNerf(source) => dnerf::load(source),
-        DataSource::N3dv(source) => n3dv::load(source),
+    let (dataset, path) = match source {
+        DataSource::Synthetic(scene) => {
+            let path = "synthetic scene";
+            let dataset = scene
+                .build()
+                .map_err(|message| DataError::dataset(std::path::Path::new(path), message))?;
+            (dataset, path)
+        }
+        DataSource::Panoptic(source) => (panoptic::load(source)?, source.path.as_str()),
+        DataSource::DNerf(source) => (dnerf::load(source)?, source.path.as_str()),
+        DataSource::N3dv(source) => (n3dv::load(source)?, source.path.as_str()),
+    };
+    check_camera_positions(&dataset.cameras)
+        .map_err(|message| DataError::dataset(std::path::Path::new(path), message))?;
+    Ok(dataset)
+}
+
+/// How far from the origin a camera may be, in scene units. Positions are `f32`: at 1e6 a
+/// step of the position learning rate (≈1e-6 of the scene extent) is below their precision,
+/// and far beyond it sizes overflow. Recentre and rescale scenes beyond it.
+pub const MAX_CAMERA_DISTANCE: f32 = 1e6;
+
+/// Every camera centre is finite and within [`MAX_CAMERA_DISTANCE`] of the origin.
+pub fn check_camera_positions(cameras: &[Camera]) -> Result<(), String> {
+    for (index, camera) in cameras.iter().enumerate() {
+        let centre = camera.center();
+        let distance = centre.length();
+        if !(distance <= MAX_CAMERA_DISTANCE) {
+            return Err(format!(
+                "camera {index} is at ({:.3e}, {:.3e}, {:.3e}), farther than {MAX_CAMERA_DISTANCE:.0e} \
+                 from the origin (or not finite): recentre and rescale the scene",
+                centre.x, centre.y, centre.z
+            ));
+        }
     }
+    Ok(())
 }
 
 /// A setting of a data source that is out of range: the field and what is wrong. Readers
