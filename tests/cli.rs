@@ -323,6 +323,37 @@ fn export_render_and_info_on_a_trained_run() {
     assert_eq!(exported.frame_count, Some(6));
     assert!(exported.gaussians == model.gaussians);
 
+    // Exports that would overwrite one another, or write the wrong kind of file, are refused
+    // before anything is written.
+    let refused = dir.path().join("refused");
+    let refused_s = refused.to_str().unwrap();
+    for (args, says) in [
+        (
+            &["--times", "0.33333,0.3333"][..],
+            "time_0.3333.ply would be written twice",
+        ),
+        (
+            &["--frames", "0,0,0"][..],
+            "frame_0000.ply would be written twice",
+        ),
+        (
+            &["--frames", "1", "--min-opacity", "NaN"][..],
+            "--min-opacity",
+        ),
+        (
+            &["--frames", "1", "--min-opacity", "2"][..],
+            "--min-opacity",
+        ),
+    ] {
+        let mut full = vec!["-q", "export", run_s, "-o", refused_s];
+        full.extend(args);
+        let stderr = run_fails(&full);
+        assert!(stderr.contains(says), "{args:?}: {stderr}");
+    }
+    let stderr = run_fails(&["-q", "export", run_s, "--format", "4d", "-o", "m.ply"]);
+    assert!(stderr.contains("*.safetensors"), "{stderr}");
+    assert!(!refused.exists() && !Path::new("m.ply").exists());
+
     let camera = dir.path().join("camera.ron");
     std::fs::write(
         &camera,

@@ -64,6 +64,15 @@ pub fn export(args: ExportCommand, ui: Ui) -> Result<()> {
             .output
             .clone()
             .unwrap_or_else(|| input.default_output("model_4d.safetensors"));
+        if path
+            .extension()
+            .is_none_or(|e| !e.eq_ignore_ascii_case("safetensors"))
+        {
+            bail!(
+                "--format 4d writes a safetensors file: name the output *.safetensors, not {}",
+                path.display()
+            );
+        }
         ensure_parent(&path)?;
         let mut model = input.model.clone();
         if model.config.is_none() {
@@ -79,6 +88,12 @@ pub fn export(args: ExportCommand, ui: Ui) -> Result<()> {
         return Ok(());
     }
 
+    if !(0.0..=1.0).contains(&args.min_opacity) {
+        bail!(
+            "--min-opacity: {} is not an opacity in [0, 1]",
+            args.min_opacity
+        );
+    }
     // (file name, time) of every PLY to write.
     let frame_time = |f: usize| tadgs::data::frame_time(f, frame_count);
     let mut exports: Vec<(String, f32)> = Vec::new();
@@ -98,6 +113,14 @@ pub fn export(args: ExportCommand, ui: Ui) -> Result<()> {
             bail!("--frames: frame {f} is past the sequence's {frame_count} frames");
         }
         exports.push((format!("frame_{f:04}.ply"), frame_time(f)));
+    }
+    let mut names: Vec<&str> = exports.iter().map(|(name, _)| name.as_str()).collect();
+    names.sort_unstable();
+    if let Some(twice) = names.windows(2).find(|w| w[0] == w[1]) {
+        bail!(
+            "{} would be written twice: give each time (to 4 decimals) and frame once",
+            twice[0]
+        );
     }
     if exports.is_empty() {
         bail!("choose what to export: --times, --frames or --every-frame (or --format 4d)");
