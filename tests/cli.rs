@@ -350,6 +350,50 @@ fn export_render_and_info_on_a_trained_run() {
         let stderr = run_fails(&full);
         assert!(stderr.contains(says), "{args:?}: {stderr}");
     }
+    // Sizes from input are checked before anything that large is allocated.
+    let stderr = run_fails(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "-o",
+        refused_s,
+        "--set",
+        "data.width=100000",
+    ]);
+    assert!(stderr.contains("16384"), "{stderr}");
+    let stderr = run_fails(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "-o",
+        refused_s,
+        "--set",
+        "data.width=16384",
+        "--set",
+        "data.height=16384",
+    ]);
+    assert!(stderr.contains("memory available"), "{stderr}");
+    let out = tadgs(&[
+        "-q",
+        "render",
+        run_s,
+        "--size",
+        "100000x100000",
+        "-o",
+        refused_s,
+    ]);
+    assert_eq!(out.status.code(), Some(2), "a clap usage error");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("16384"));
+    let stderr = run_fails(&[
+        "-q",
+        "render",
+        run_s,
+        "--frames",
+        "99999999999",
+        "-o",
+        refused_s,
+    ]);
+    assert!(stderr.contains("--frames"), "{stderr}");
     let stderr = run_fails(&["-q", "export", run_s, "--format", "4d", "-o", "m.ply"]);
     assert!(stderr.contains("*.safetensors"), "{stderr}");
     assert!(!refused.exists() && !Path::new("m.ply").exists());

@@ -150,6 +150,21 @@ fn corpus(dir: &Path) -> Vec<(&'static str, Vec<u8>, Vec<&'static str>)> {
             vec!["sh_degree", "0..=3"],
         ),
         (
+            "a frame count no sequence has (exports of every frame would never end)",
+            model_file(
+                3,
+                0.5,
+                &[
+                    ("format", MODEL_FORMAT),
+                    ("version", MODEL_VERSION),
+                    ("sh_degree", "0"),
+                    ("frame_count", "99999999999999"),
+                ],
+                |_| {},
+            ),
+            vec!["frame_count", "1000000"],
+        ),
+        (
             "a tensor missing",
             valid_file(|t| drop(t.pop())),
             vec!["`color`", "missing"],

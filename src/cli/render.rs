@@ -85,9 +85,13 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let parsed = text
         .split_once(['x', 'X'])
         .and_then(|(w, h)| Some((w.trim().parse::<u32>().ok()?, h.trim().parse::<u32>().ok()?)));
+    let max = tadgs::data::MAX_IMAGE_SIDE;
     match parsed {
-        Some((w, h)) if w > 0 && h > 0 => Ok((w, h)),
-        _ => Err(format!(
+        Some((w, h)) if (1..=max).contains(&w) && (1..=max).contains(&h) => Ok((w, h)),
+        Some(_) => Err(format!(
+            "{text:?}: each side must be between 1 and {max} pixels"
+        )),
+        None => Err(format!(
             "expected WIDTHxHEIGHT such as 960x540, got {text:?}"
         )),
     }
@@ -103,8 +107,14 @@ fn sweep(k: usize, n: usize) -> f32 {
 }
 
 pub fn render(args: RenderCommand, ui: Ui) -> Result<()> {
-    if args.frames == Some(0) {
-        bail!("--frames must be at least 1");
+    if let Some(n) = args
+        .frames
+        .filter(|n| !(1..=tadgs::data::MAX_FRAMES).contains(n))
+    {
+        bail!(
+            "--frames must be between 1 and {}, got {n}",
+            tadgs::data::MAX_FRAMES
+        );
     }
     if args.time.is_some_and(|t| !(0.0..=1.0).contains(&t)) {
         bail!("--time must lie in [0, 1]");
@@ -292,6 +302,8 @@ mod tests {
     fn size_parsing() {
         assert_eq!(parse_size("640x480"), Ok((640, 480)));
         assert!(parse_size("0x480").is_err());
+        assert!(parse_size("100000x100000").is_err());
+        assert_eq!(parse_size("16384x16384"), Ok((16384, 16384)));
         assert!(parse_size("640").is_err());
     }
 

@@ -187,6 +187,14 @@ pub fn load(source: &crate::scene::DataSource) -> Result<Dataset, DataError> {
     Ok(dataset)
 }
 
+/// The largest image side, in pixels, that tadgs reads, renders or generates (that of the
+/// largest textures GPUs commonly support); larger sizes from input are refused before any
+/// allocation.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// The most frames a sequence may have (model metadata, exports, renders).
+pub const MAX_FRAMES: usize = 1_000_000;
+
 /// How far from the origin a camera may be, in scene units. Positions are `f32`: at 1e6 a
 /// step of the position learning rate (≈1e-6 of the scene extent) is below their precision,
 /// and far beyond it sizes overflow. Recentre and rescale scenes beyond it.

@@ -291,9 +291,13 @@ impl SyntheticScene {
         if self.frames < 2 {
             return Err(format!("frames must be at least 2, got {}", self.frames));
         }
-        if self.width == 0 || self.height == 0 {
-            let field = if self.width == 0 { "width" } else { "height" };
-            return Err(format!("{field} must be positive"));
+        for (field, side) in [("width", self.width), ("height", self.height)] {
+            if !(1..=super::MAX_IMAGE_SIDE).contains(&side) {
+                return Err(format!(
+                    "{field} must be between 1 and {} pixels, got {side}",
+                    super::MAX_IMAGE_SIDE
+                ));
+            }
         }
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
             return Err(format!(
@@ -522,6 +526,22 @@ impl SyntheticScene {
         self.validate()?;
         let cameras = self.cameras();
         let frames = self.frames;
+        // RGB f32 and a mask byte per pixel of every view, checked before any is allocated.
+        let bytes = (cameras.len() * frames) as u64
+            * u64::from(self.width)
+            * u64::from(self.height)
+            * (12 + 1);
+        if let Some(available) = crate::budget::available_memory().filter(|&a| bytes > a) {
+            return Err(format!(
+                "{} cameras × {frames} frames at {}×{} need {:.1} GB of images, more than the \
+                 {:.1} GB of memory available: lower width, height, frames or cameras.count",
+                cameras.len(),
+                self.width,
+                self.height,
+                bytes as f64 / 1e9,
+                available as f64 / 1e9
+            ));
+        }
         let rendered: Vec<(Image, Vec<bool>)> = (0..cameras.len() * frames)
             .into_par_iter()
             .map(|k| {

@@ -75,9 +75,10 @@ pub struct CameraSpec {
 impl CameraSpec {
     /// The camera, or what is wrong with it.
     pub fn to_camera(&self) -> Result<Camera, String> {
-        if self.width == 0 || self.height == 0 {
+        let max = crate::data::MAX_IMAGE_SIDE;
+        if !(1..=max).contains(&self.width) || !(1..=max).contains(&self.height) {
             return Err(format!(
-                "image size {}×{} is empty",
+                "image size {}×{} is empty or larger than {max} pixels a side",
                 self.width, self.height
             ));
         }

@@ -204,10 +204,10 @@ impl Model {
         let frame_count =
             match metadata.get("frame_count") {
                 None => None,
-                Some(text) => Some(text.parse::<usize>().ok().filter(|&n| n > 0).ok_or_else(
+                Some(text) => Some(text.parse::<usize>().ok().filter(|n| (1..=crate::data::MAX_FRAMES).contains(n)).ok_or_else(
                     || {
                         format_error(format!(
-                            "metadata `frame_count` is {text:?}, expected a positive integer"
+                            "metadata `frame_count` is {text:?}, expected a whole number from 1 to {}", crate::data::MAX_FRAMES
                         ))
                     },
                 )?),
