@@ -737,3 +737,32 @@ fn eval_refuses_a_model_of_another_scene() {
     assert!(stderr.contains("deformation settings"), "{stderr}");
     assert_eq!(std::fs::read(run.join("metrics.json")).unwrap(), metrics);
 }
+
+/// Mistyped evaluation inputs stop `train` before it loads data or writes anything: a
+/// missing LPIPS file, a mask "folder" that is a file, a flow threshold that is not a positive
+/// number; `masks` accepts -o like the other commands.
+#[test]
+fn evaluation_inputs_are_checked_before_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let scene = scene.to_str().unwrap();
+    let run = dir.path().join("run");
+    let run_s = run.to_str().unwrap();
+    let file = dir.path().join("tiny.ron");
+    let file_s = file.to_str().unwrap();
+    for (args, says) in [
+        (&["--lpips", "no/such/alex.safetensors"][..], "no such file"),
+        (&["--masks", file_s][..], "not a folder"),
+        (&["--flow-threshold", "-1"][..], "--flow-threshold"),
+        (&["--flow-threshold", "NaN"][..], "--flow-threshold"),
+    ] {
+        let mut full = vec!["-q", "train", scene, "-o", run_s];
+        full.extend(args);
+        let stderr = run_fails(&full);
+        assert!(stderr.contains(says), "{args:?}: {stderr}");
+        assert!(!run.exists(), "{args:?}: nothing written");
+    }
+    let masks = dir.path().join("masks");
+    run_ok(&["-q", "masks", scene, "-o", masks.to_str().unwrap()]);
+    assert!(masks.join("masks.ron").is_file());
+}

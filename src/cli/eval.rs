@@ -49,6 +49,8 @@ pub enum Split {
 
 /// `tadgs eval`.
 #[derive(clap::Args, Debug)]
+// Negative numbers are values (and refused with a clear message), not unknown flags.
+#[command(allow_negative_numbers = true)]
 pub struct EvalCommand {
     /// Run folder written by `tadgs train` (holds scene.ron and model.safetensors).
     pub run: PathBuf,
@@ -64,18 +66,54 @@ pub struct EvalCommand {
 
 /// `tadgs masks`.
 #[derive(clap::Args, Debug)]
+// Negative numbers are values (and refused with a clear message), not unknown flags.
+#[command(allow_negative_numbers = true)]
 pub struct MasksCommand {
     /// Scene file (RON).
     pub scene: PathBuf,
     /// Override any scene setting.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
-    /// Folder for the mask PNGs.
-    #[arg(long, value_name = "DIR")]
+    /// Folder for the mask PNGs (with masks.ron recording the threshold; masks made with
+    /// another threshold are computed again).
+    #[arg(long, short, value_name = "DIR")]
     pub output: PathBuf,
     /// Flow magnitude (pixels) above which a pixel is dynamic.
     #[arg(long, default_value_t = DEFAULT_FLOW_THRESHOLD, value_name = "PIXELS")]
     pub flow_threshold: f32,
+}
+
+/// A flow threshold is a positive number of pixels.
+fn check_flow_threshold(threshold: f32) -> Result<()> {
+    if !(threshold > 0.0 && threshold.is_finite()) {
+        bail!("--flow-threshold must be a positive number of pixels, got {threshold}");
+    }
+    Ok(())
+}
+
+impl EvalArgs {
+    /// Checks the paths and numbers given, so that a typo stops the command before training
+    /// or loading data rather than after.
+    pub fn check(&self) -> Result<()> {
+        check_flow_threshold(self.flow_threshold)?;
+        if let Some(path) = &self.lpips {
+            if !path.is_file() {
+                bail!("--lpips {}: no such file", path.display());
+            }
+        }
+        if let Some(dir) = &self.masks {
+            if dir.exists() && !dir.is_dir() {
+                bail!("--masks {}: not a folder", dir.display());
+            }
+            if !dir.exists() {
+                tracing::warn!(
+                    "--masks {}: no such folder yet; the masks will be computed and written there",
+                    dir.display()
+                );
+            }
+        }
+        Ok(())
+    }
 }
 
 pub fn eval(args: EvalCommand, ui: Ui) -> Result<()> {
@@ -85,6 +123,7 @@ pub fn eval(args: EvalCommand, ui: Ui) -> Result<()> {
         split,
         mut eval,
     } = args;
+    eval.check()?;
     let config = load_with_overrides(&run.join("scene.ron"), &overrides)?;
     let model_path = run.join("model.safetensors");
     let model = Model::load(&model_path)?;
@@ -118,6 +157,7 @@ pub fn eval(args: EvalCommand, ui: Ui) -> Result<()> {
 }
 
 pub fn masks(args: MasksCommand, ui: Ui) -> Result<()> {
+    check_flow_threshold(args.flow_threshold)?;
     let config = load_with_overrides(&args.scene, &args.overrides)?;
     let dataset = load_dataset(&config)?;
     let source = MaskSource {

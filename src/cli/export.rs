@@ -24,6 +24,8 @@ pub enum ExportFormat {
 
 /// `tadgs export`.
 #[derive(clap::Args, Debug)]
+// Negative numbers are values (and refused with a clear message), not unknown flags.
+#[command(allow_negative_numbers = true)]
 pub struct ExportCommand {
     /// What to export: a run folder, a model file (.safetensors) or a splat file (.ply).
     pub input: PathBuf,

@@ -38,6 +38,8 @@ pub struct CameraSource {
 
 /// `tadgs render`.
 #[derive(clap::Args, Debug)]
+// Negative numbers are values (and refused with a clear message), not unknown flags.
+#[command(allow_negative_numbers = true)]
 pub struct RenderCommand {
     /// What to render: a run folder (scene.ron + model.safetensors), a model file
     /// (.safetensors) or a static 3DGS splat file (.ply).

@@ -38,6 +38,8 @@ fn catch_ctrl_c() {
 
 /// `tadgs train`.
 #[derive(clap::Args, Debug)]
+// Negative numbers are values (and refused with a clear message), not unknown flags.
+#[command(allow_negative_numbers = true)]
 pub struct TrainCommand {
     /// Scene file (RON), e.g. scenes/demo.ron or scenes/panoptic.ron. Not given with --resume
     /// (the checkpoint holds the scene).
@@ -90,6 +92,7 @@ pub struct TrainCommand {
 }
 
 pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
+    args.eval.check()?;
     let (mut config, checkpoint, output, continuing) = match &args.resume {
         None => {
             let scene = args

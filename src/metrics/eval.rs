@@ -151,8 +151,9 @@ pub enum MaskError {
         /// Height of the view's image in pixels.
         expected_height: usize,
     },
-    /// The mask folder could not be created (only attempted when masks are computed).
-    #[error("cannot create mask folder {}: {source}", path.display())]
+    /// The mask folder, or the record of its settings, could not be written (only attempted
+    /// when masks are computed).
+    #[error("cannot write {}: {source}", path.display())]
     Folder {
         /// The mask folder.
         path: PathBuf,
@@ -161,20 +162,76 @@ pub enum MaskError {
     },
 }
 
+/// The record of how a mask folder's masks were computed, beside them.
+pub const MASK_SETTINGS_FILE: &str = "masks.ron";
+
+/// How computed masks were made (written to [`MASK_SETTINGS_FILE`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct MaskSettings {
+    /// Flow magnitude threshold in pixels.
+    pub flow_threshold: f32,
+}
+
+/// Whether the PNGs already in `folder` may be reused with `threshold`: yes when they were
+/// made with it, or when nothing records how they were made (masks the user supplied);
+/// no when they were made with another threshold. Logs what it decides.
+fn reuse_mask_folder(folder: &Path, threshold: f32) -> bool {
+    let existing = std::fs::read_dir(folder)
+        .map(|entries| {
+            entries
+                .flatten()
+                .filter(|e| e.file_name().to_string_lossy().ends_with(".png"))
+                .count()
+        })
+        .unwrap_or(0);
+    if existing == 0 {
+        return true;
+    }
+    let record = std::fs::read_to_string(folder.join(MASK_SETTINGS_FILE))
+        .ok()
+        .and_then(|text| ron::from_str::<MaskSettings>(&text).ok());
+    match record {
+        Some(made) if made.flow_threshold != threshold => {
+            tracing::info!(
+                "the {existing} masks in {} were made with flow threshold {} px; computing them \
+                 again with {threshold} px",
+                folder.display(),
+                made.flow_threshold
+            );
+            false
+        }
+        Some(_) => {
+            tracing::info!("reusing the {existing} masks in {}", folder.display());
+            true
+        }
+        None => {
+            tracing::info!(
+                "reusing the {existing} masks in {} (no {MASK_SETTINGS_FILE} records how they \
+                 were made)",
+                folder.display()
+            );
+            true
+        }
+    }
+}
+
 /// The dynamic mask of every held-out view (in `dataset.test` order): the dataset's own
 /// (exact) mask, else the mask folder's PNG, else optical flow when [`MaskSource::compute`]
-/// is set. With `compute`, every mask not read from the folder is written there as a PNG.
-/// `progress` is called once per view.
+/// is set. With `compute`, every mask not read from the folder is written there as a PNG,
+/// with the settings in [`MASK_SETTINGS_FILE`]; PNGs recorded there as made with another
+/// threshold are computed again. `progress` is called once per view.
 pub fn dynamic_masks(
     dataset: &Dataset,
     source: &MaskSource,
     mut progress: impl FnMut(),
 ) -> Result<Vec<Option<Vec<bool>>>, MaskError> {
+    let mut reuse = true;
     if let Some(folder) = source.folder.as_ref().filter(|_| source.compute) {
         std::fs::create_dir_all(folder).map_err(|e| MaskError::Folder {
             path: folder.clone(),
             source: e,
         })?;
+        reuse = reuse_mask_folder(folder, source.threshold);
     }
     let mut masks = Vec::with_capacity(dataset.test.len());
     for view in &dataset.test {
@@ -185,7 +242,7 @@ pub fn dynamic_masks(
             .map(|f| f.join(mask_file_name(view.camera, view.frame)));
         let from_file = file
             .as_ref()
-            .filter(|p| p.is_file() && view.dynamic_mask.is_none());
+            .filter(|p| reuse && p.is_file() && view.dynamic_mask.is_none());
         let mask = if let Some(path) = from_file {
             Some(read_mask_png(path, width, height)?)
         } else {
@@ -202,6 +259,16 @@ pub fn dynamic_masks(
         };
         masks.push(mask);
         progress();
+    }
+    // Recorded once every mask is written, so the record never describes older files.
+    if let Some(folder) = source.folder.as_ref().filter(|_| source.compute) {
+        let settings = MaskSettings {
+            flow_threshold: source.threshold,
+        };
+        let text = ron::to_string(&settings).expect("mask settings serialise");
+        let path = folder.join(MASK_SETTINGS_FILE);
+        crate::io::write_atomic(&path, text.as_bytes())
+            .map_err(|e| MaskError::Folder { path, source: e })?;
     }
     Ok(masks)
 }
@@ -311,9 +378,28 @@ mod tests {
         assert!(!mask[2 * w + 2]);
         let cached = MaskSource {
             compute: false,
-            ..source
+            ..source.clone()
         };
         let again = dynamic_masks(&dataset, &cached, || {}).unwrap();
         assert_eq!(masks, again);
+
+        // The folder records its threshold; another threshold computes the masks again
+        // instead of reusing them (a huge one flags nothing), and the record follows.
+        let record = |dir: &Path| -> MaskSettings {
+            ron::from_str(&std::fs::read_to_string(dir.join(MASK_SETTINGS_FILE)).unwrap()).unwrap()
+        };
+        let folder = dir.path().join("masks");
+        assert_eq!(record(&folder).flow_threshold, flow::DEFAULT_FLOW_THRESHOLD);
+        let strict = MaskSource {
+            threshold: 1000.0,
+            ..source.clone()
+        };
+        let recomputed = dynamic_masks(&dataset, &strict, || {}).unwrap();
+        assert!(!recomputed[5].as_ref().unwrap().iter().any(|&d| d));
+        assert_eq!(record(&folder).flow_threshold, 1000.0);
+        // Without a record (masks the user supplied), the PNGs are reused as they are.
+        std::fs::remove_file(folder.join(MASK_SETTINGS_FILE)).unwrap();
+        let reused = dynamic_masks(&dataset, &source, || {}).unwrap();
+        assert_eq!(reused, recomputed);
     }
 }
