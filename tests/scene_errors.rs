@@ -328,6 +328,10 @@ fn validate_names_each_bad_field() {
         ("train.lambda_dssim", |c| c.train.lambda_dssim = 1.5),
         ("train.lr.scale", |c| c.train.lr.scale = -1.0),
         ("train.lr.opacity", |c| c.train.lr.opacity = f32::INFINITY),
+        // Learning rates that can only diverge (1e30 trained to positions at ±7e28).
+        ("train.lr.position", |c| c.train.lr.position = 1e30),
+        ("train.lr.sh_dc", |c| c.train.lr.sh_dc = 2.0),
+        ("train.lr.fourier_phase", |c| c.train.lr.fourier_phase = 1e3),
         ("train.lr.position_final", |c| {
             c.train.lr.position_final = 1.0
         }),

@@ -317,8 +317,12 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
         ("scale_velocity", lr.scale_velocity),
         ("sh_dc", lr.sh_dc),
     ];
+    // Adam moves a parameter by about its learning rate per step: above 1 (a whole unit of
+    // logit, log-scale or colour, or 1 × the extent for positions, every iteration) training
+    // only diverges. The Fourier rates are fractions of the position rate.
     for (name, v) in rates {
-        at_least(&format!("train.lr.{name}"), v, 0.0)?;
+        let most = if name.starts_with("fourier") { 100.0 } else { 1.0 };
+        in_range(&format!("train.lr.{name}"), v, 0.0, true, most, true)?;
     }
     positive("train.lr.sh_rest_divisor", lr.sh_rest_divisor)?;
     if lr.position_final > lr.position {
