@@ -2,6 +2,8 @@
 
 mod mutate;
 
+use std::path::Path;
+
 use proptest::prelude::*;
 use tadgs::scene::load::{apply_overrides, set_override, validate};
 use tadgs::scene::*;
@@ -717,4 +719,40 @@ proptest! {
             prop_assert!(error.to_string().starts_with("scene.ron"), "{}", error);
         }
     }
+}
+
+/// A scene file's relative data path is found beside the file when it exists there (so the
+/// scene works from any working directory), else stays relative to the working directory;
+/// `absolute_paths` (what a run's scene.ron holds) makes it absolute; a UTF-8 byte-order mark
+/// at the start of the file is accepted.
+#[test]
+fn relative_paths_resolve_beside_the_scene_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir_all(scenes.join("mutant")).unwrap();
+    let scene = |path: &str| {
+        format!("\u{feff}(name: \"d\", data: DNerf((path: \"{path}\")), output: \"runs/d\")")
+    };
+    let file = scenes.join("beside.ron");
+    std::fs::write(&file, scene("mutant")).unwrap();
+    let config = load_scene(&file).unwrap();
+    let DataSource::DNerf(source) = &config.data else {
+        panic!("a D-NeRF scene")
+    };
+    assert_eq!(Path::new(&source.path), scenes.join("mutant"));
+
+    std::fs::write(&file, scene("elsewhere/mutant")).unwrap();
+    let mut config = load_scene(&file).unwrap();
+    let DataSource::DNerf(source) = &config.data else {
+        panic!("a D-NeRF scene")
+    };
+    assert_eq!(source.path, "elsewhere/mutant");
+    config.absolute_paths();
+    let DataSource::DNerf(source) = &config.data else {
+        panic!("a D-NeRF scene")
+    };
+    assert_eq!(
+        Path::new(&source.path),
+        std::env::current_dir().unwrap().join("elsewhere/mutant")
+    );
 }

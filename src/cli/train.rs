@@ -152,6 +152,8 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
         set_override(&mut config, "train.backend", kind)?;
     }
 
+    // The run's scene.ron (and checkpoint) must work from any working directory.
+    config.absolute_paths();
     // A new run never mixes its files with another run's: checked before the (slow) data
     // loading, and again once the folder is locked.
     if !continuing {

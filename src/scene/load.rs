@@ -105,7 +105,25 @@ pub fn load_scene(path: &Path) -> Result<SceneConfig, SceneError> {
         path: shown.clone(),
         source,
     })?;
-    parse_scene(&text, &shown)
+    // Editors on some systems start UTF-8 files with a byte-order mark.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    let mut config = parse_scene(text, &shown)?;
+    resolve_beside(&mut config, path.parent().unwrap_or(Path::new("")));
+    Ok(config)
+}
+
+/// Relative paths in a scene file are looked up beside the file first, so a scene works from
+/// any working directory; where nothing exists there, they stay relative to the working
+/// directory (how the shipped scenes, run from the repository root, name `../shared/data`).
+fn resolve_beside(config: &mut SceneConfig, folder: &Path) {
+    for path in config.paths_mut() {
+        if Path::new(path.as_str()).is_relative() {
+            let beside = folder.join(path.as_str());
+            if beside.exists() {
+                *path = beside.to_string_lossy().into_owned();
+            }
+        }
+    }
 }
 
 /// Parses and validates a scene from RON text; `path` is only used in error messages.
@@ -321,7 +339,11 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
     // logit, log-scale or colour, or 1 × the extent for positions, every iteration) training
     // only diverges. The Fourier rates are fractions of the position rate.
     for (name, v) in rates {
-        let most = if name.starts_with("fourier") { 100.0 } else { 1.0 };
+        let most = if name.starts_with("fourier") {
+            100.0
+        } else {
+            1.0
+        };
         in_range(&format!("train.lr.{name}"), v, 0.0, true, most, true)?;
     }
     positive("train.lr.sh_rest_divisor", lr.sh_rest_divisor)?;

@@ -90,6 +90,33 @@ pub enum DataSource {
     N3dv(N3dvSource),
 }
 
+impl SceneConfig {
+    /// Every file or folder path the scene names: the data folder and an initial point cloud.
+    pub fn paths_mut(&mut self) -> Vec<&mut String> {
+        let mut paths = Vec::new();
+        match &mut self.data {
+            DataSource::Synthetic(_) => {}
+            DataSource::Panoptic(source) => paths.push(&mut source.path),
+            DataSource::DNerf(source) => paths.push(&mut source.path),
+            DataSource::N3dv(source) => paths.push(&mut source.path),
+        }
+        if let InitMethod::PointCloud(path) = &mut self.init.method {
+            paths.push(path);
+        }
+        paths
+    }
+
+    /// Makes every relative path the scene names absolute (against the working directory),
+    /// so that a run folder's scene.ron works from any directory.
+    pub fn absolute_paths(&mut self) {
+        for path in self.paths_mut() {
+            if let Ok(absolute) = std::path::absolute(path.as_str()) {
+                *path = absolute.to_string_lossy().into_owned();
+            }
+        }
+    }
+}
+
 /// Where the initial points of each anchor frame come from.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub enum InitMethod {
