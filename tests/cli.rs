@@ -766,3 +766,61 @@ fn evaluation_inputs_are_checked_before_training() {
     run_ok(&["-q", "masks", scene, "-o", masks.to_str().unwrap()]);
     assert!(masks.join("masks.ron").is_file());
 }
+
+/// An edit to a run's scene.ron is not silently dropped by `--resume`: it is refused with the
+/// line that changed and the way to give the change; a resume with `--iterations` rewrites
+/// scene.ron to match its checkpoint, so the next resume goes on.
+#[test]
+fn resume_refuses_an_edited_scene_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let run = dir.path().join("run");
+    let run_s = run.to_str().unwrap();
+    run_ok(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "-o",
+        run_s,
+        "--until",
+        "10",
+    ]);
+    let scene_ron = run.join("scene.ron");
+    let original = std::fs::read_to_string(&scene_ron).unwrap();
+    assert!(original.contains("iterations: 40,"));
+    std::fs::write(
+        &scene_ron,
+        original.replace("iterations: 40,", "iterations: 60,"),
+    )
+    .unwrap();
+    let stderr = run_fails(&["-q", "train", "--resume", run_s]);
+    assert!(
+        stderr.contains("`iterations: 40,` → `iterations: 60,`") && stderr.contains("--set"),
+        "{stderr}"
+    );
+    std::fs::write(&scene_ron, &original).unwrap();
+    run_ok(&[
+        "-q",
+        "train",
+        "--resume",
+        run_s,
+        "--iterations",
+        "50",
+        "--until",
+        "20",
+    ]);
+    assert!(
+        std::fs::read_to_string(&scene_ron)
+            .unwrap()
+            .contains("iterations: 50,")
+    );
+    run_ok(&[
+        "-q",
+        "train",
+        "--resume",
+        run_s,
+        "--no-report",
+        "--no-renders",
+    ]);
+    assert!(run.join("model.safetensors").is_file());
+}

@@ -116,6 +116,7 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
                 (dir.join("checkpoint"), dir.clone())
             };
             let checkpoint = Checkpoint::load(&folder)?;
+            refuse_edited_scene(&run, &checkpoint.state.scene)?;
             let mut config = checkpoint.state.scene.clone();
             apply_overrides(&mut config, &args.overrides)?;
             let output = args.output.clone().unwrap_or_else(|| run.clone());
@@ -169,7 +170,11 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
             refuse_existing_run(&output, false)?;
         }
     }
-    write_atomic(&output.join("scene.ron"), scene_text(&config)?.as_bytes())?;
+    // A resumed run's scene.ron is rewritten with its next checkpoint (its settings may
+    // change with --set), so that the two always agree for the next --resume.
+    if checkpoint.is_none() {
+        write_atomic(&output.join("scene.ron"), scene_text(&config)?.as_bytes())?;
+    }
     let (mut trainer, log) = match checkpoint {
         None => {
             let start = Instant::now();
@@ -210,6 +215,33 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
         return Ok(());
     }
     run.finish(&dataset, &args)
+}
+
+/// A resumed run trains with its checkpoint's settings: fails when `run/scene.ron` was edited
+/// since (the edit would otherwise be silently dropped), listing the lines that differ.
+fn refuse_edited_scene(run: &Path, checkpoint: &SceneConfig) -> Result<()> {
+    let path = run.join("scene.ron");
+    if !path.is_file() {
+        return Ok(());
+    }
+    let edited = tadgs::scene::load_scene(&path)?;
+    if edited == *checkpoint {
+        return Ok(());
+    }
+    let (ours, theirs) = (scene_text(checkpoint)?, scene_text(&edited)?);
+    let changes: Vec<String> = ours
+        .lines()
+        .zip(theirs.lines())
+        .filter(|(a, b)| a != b)
+        .take(6)
+        .map(|(a, b)| format!("`{}` → `{}`", a.trim(), b.trim()))
+        .collect();
+    bail!(
+        "{} differs from the checkpoint's settings ({}): a resumed run keeps the settings it \
+         started with. Give changes with --set KEY=VALUE or --iterations N, or restore the file",
+        path.display(),
+        changes.join(", ")
+    )
 }
 
 /// Whether two scenes train the same way (everything but where the output goes).
@@ -358,6 +390,10 @@ impl Run<'_> {
         let start = Instant::now();
         let dir = self.output.join("checkpoint");
         let checkpoint = self.trainer.checkpoint(self.config, &self.log);
+        write_atomic(
+            &self.output.join("scene.ron"),
+            scene_text(self.config)?.as_bytes(),
+        )?;
         checkpoint.save(&dir)?;
         tracing::debug!(
             "checkpoint at iteration {} written to {} in {:.2} s",
