@@ -54,6 +54,10 @@ fn main() -> std::process::ExitCode {
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
+            if let Some(stopped) = error.downcast_ref::<cli::train::Stopped>() {
+                eprintln!("{stopped}");
+                return std::process::ExitCode::from(130);
+            }
             eprintln!("error: {}", describe(&error));
             std::process::ExitCode::FAILURE
         }
@@ -85,6 +89,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         )
         .with_target(false)
         .without_time()
+        // Colours only on a terminal (not in log files or pipes), and never with NO_COLOR.
+        .with_ansi(
+            std::io::IsTerminal::is_terminal(&std::io::stderr())
+                && std::env::var_os("NO_COLOR").is_none(),
+        )
         .with_writer(std::io::stderr)
         .init();
     let ui = cli::Ui { quiet: cli.quiet };

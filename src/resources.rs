@@ -40,8 +40,10 @@ impl Settings {
     /// Resolves a scene's settings for a sequence of `frame_count` frames with the given extent.
     pub fn new(scene: &SceneConfig, frame_count: usize, extent: f32) -> Self {
         let tow = scene.model.tow;
+        // Debug, not a warning: short sequences meet this with the default window, and
+        // nothing is wrong with the run.
         if tow.enabled && tow.window_frames >= frame_count as f32 {
-            tracing::warn!(
+            tracing::debug!(
                 "model.tow.window_frames = {} covers all {frame_count} frames: the warp is the \
                  identity, so TOW has no effect on this sequence",
                 tow.window_frames

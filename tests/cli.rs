@@ -394,6 +394,20 @@ fn export_render_and_info_on_a_trained_run() {
         refused_s,
     ]);
     assert!(stderr.contains("--frames"), "{stderr}");
+    let stderr = run_fails(&["-q", "render", run_s, "--up", "0,0,0", "-o", refused_s]);
+    assert!(stderr.contains("not a direction"), "{stderr}");
+    let jpg = dir.path().join("x.jpg");
+    let stderr = run_fails(&[
+        "-q",
+        "render",
+        run_s,
+        "--frames",
+        "1",
+        "-o",
+        jpg.to_str().unwrap(),
+    ]);
+    assert!(stderr.contains(".png, .mp4 or a folder"), "{stderr}");
+    assert!(!jpg.exists());
     let stderr = run_fails(&["-q", "export", run_s, "--format", "4d", "-o", "m.ply"]);
     assert!(stderr.contains("*.safetensors"), "{stderr}");
     assert!(!refused.exists() && !Path::new("m.ply").exists());
@@ -515,14 +529,19 @@ fn ctrl_c_writes_a_checkpoint_and_stops() {
     let mut rest = String::new();
     std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
     let code = child.wait().unwrap().code();
-    assert_eq!(code, Some(1), "{rest}");
-    assert!(rest.contains("interrupted after iteration"), "{rest}");
+    assert_eq!(code, Some(130), "{rest}");
+    assert!(rest.contains("stopped after iteration"), "{rest}");
+    assert!(!rest.contains("error:"), "{rest}");
+    assert!(
+        !rest.contains('\u{1b}'),
+        "no colour codes in a pipe: {rest}"
+    );
     assert!(rest.contains("--resume"), "{rest}");
     let checkpoint = tadgs::io::checkpoint::Checkpoint::load(&run.join("checkpoint")).unwrap();
     let stopped = checkpoint.state.iteration;
     assert!((100..2000).contains(&stopped), "stopped at {stopped}");
     assert!(
-        rest.contains(&format!("interrupted after iteration {stopped}:")),
+        rest.contains(&format!("stopped after iteration {stopped}:")),
         "{rest}"
     );
     assert_eq!(checkpoint.log.steps.len(), stopped as usize);

@@ -889,6 +889,20 @@ fn panoptic_malformed_corpus() {
     }
 }
 
+/// Panoptic: asking for more frames than the sequence has is an error naming both counts,
+/// not a silently shorter sequence.
+#[test]
+fn panoptic_more_frames_than_the_sequence_is_rejected() {
+    let dir = synthetic_panoptic();
+    let message = panoptic::load(&PanopticSource {
+        frames: Some(100),
+        ..source(&dir)
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(message.contains("asks for 100 frames"), "{message}");
+}
+
 /// Panoptic: a downscale that leaves no pixel of the image is refused, naming the setting
 /// and the image size (rather than making 0×0 cameras).
 #[test]

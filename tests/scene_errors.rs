@@ -328,6 +328,8 @@ fn validate_names_each_bad_field() {
     type Edit = fn(&mut SceneConfig);
     let cases: &[(&str, Edit)] = &[
         ("train.lambda_dssim", |c| c.train.lambda_dssim = 1.5),
+        ("name", |c| c.name = " ".into()),
+        ("output", |c| c.output = String::new()),
         ("train.lr.scale", |c| c.train.lr.scale = -1.0),
         ("train.lr.opacity", |c| c.train.lr.opacity = f32::INFINITY),
         // Learning rates that can only diverge (1e30 trained to positions at ±7e28).

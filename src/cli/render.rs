@@ -141,7 +141,7 @@ pub fn render(args: RenderCommand, ui: Ui) -> Result<()> {
     };
     let mut trainer = Trainer::try_from_model(&scene, Arc::new(render_data), &input.model)?;
 
-    let output = output_path(&args, &input, shots.len());
+    let output = output_path(&args, &input, shots.len())?;
     ensure_parent(&output)?;
     let bar = ui.progress_bar(shots.len() as u64, "render");
     let is_mp4 = output
@@ -206,15 +206,24 @@ pub fn render(args: RenderCommand, ui: Ui) -> Result<()> {
 }
 
 /// The default output: a video where ffmpeg is installed, else a folder of frames.
-fn output_path(args: &RenderCommand, input: &Input, frames: usize) -> PathBuf {
+fn output_path(args: &RenderCommand, input: &Input, frames: usize) -> Result<PathBuf> {
     if let Some(path) = &args.output {
-        return path.clone();
+        // A folder has no extension; .png and .mp4 are files; anything else is a mistake.
+        if let Some(ext) = path.extension().map(|e| e.to_string_lossy().to_lowercase()) {
+            if ext != "png" && ext != "mp4" {
+                bail!(
+                    "-o {}: renders are written as .png, .mp4 or a folder of PNGs, not .{ext}",
+                    path.display()
+                );
+            }
+        }
+        return Ok(path.clone());
     }
-    if frames > 1 && ffmpeg_available() {
+    Ok(if frames > 1 && ffmpeg_available() {
         input.default_output("render.mp4")
     } else {
         input.default_output("render")
-    }
+    })
 }
 
 /// The cameras and times to render.
@@ -273,7 +282,10 @@ fn shots(args: &RenderCommand, input: &Input, dataset: Option<&Dataset>) -> Resu
         }
     };
     if let Some(up) = args.up {
-        orbit.up = up.normalize_or(orbit.up);
+        if !(up.length() > 1e-6 && up.is_finite()) {
+            bail!("--up {},{},{} is not a direction", up.x, up.y, up.z);
+        }
+        orbit.up = up.normalize();
         orbit.start = (orbit.start - orbit.up * orbit.start.dot(orbit.up))
             .normalize_or(orbit.up.any_orthonormal_vector());
     }

@@ -36,6 +36,19 @@ fn catch_ctrl_c() {
     }
 }
 
+/// Training stopped on Ctrl-C, with a checkpoint: not a failure, reported as a plain line
+/// with the shell's exit status for an interrupt (130).
+#[derive(Debug)]
+pub struct Stopped(pub String);
+
+impl std::fmt::Display for Stopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Stopped {}
+
 /// `tadgs train`.
 #[derive(clap::Args, Debug)]
 // Negative numbers are values (and refused with a clear message), not unknown flags.
@@ -318,12 +331,13 @@ impl Run<'_> {
             if INTERRUPTED.load(Ordering::SeqCst) {
                 bar.abandon();
                 let dir = self.save_checkpoint()?;
-                bail!(
-                    "interrupted after iteration {i}: checkpoint written to {}; continue with \
+                return Err(Stopped(format!(
+                    "stopped after iteration {i}: checkpoint written to {}; continue with \
                      `tadgs train --resume {}`",
                     dir.display(),
                     self.output.display()
-                );
+                ))
+                .into());
             }
             if let Some(fault) = self.trainer.fault() {
                 bar.abandon();

@@ -154,6 +154,18 @@ pub fn load(source: &PanopticSource) -> Result<Dataset, DataError> {
     }
 
     let kept = kept_timesteps(train.timesteps.len(), source.frame_stride, source.frames);
+    if let Some(frames) = source.frames.filter(|&f| f > kept.len()) {
+        return Err(DataError::field(
+            &train.path,
+            "frames",
+            format!(
+                "data.frames asks for {frames} frames, but the sequence has {} (with \
+                 frame_stride {})",
+                kept.len(),
+                source.frame_stride
+            ),
+        ));
+    }
     let frame_count = kept.len();
 
     let (cameras, camera_index) = build_cameras(&[&train, &test], source.downscale)?;

@@ -300,6 +300,18 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 /// `lifespan_half_frames > 0`; and the data source's own check (reported under `data`).
 /// Non-finite floats are rejected wherever a float is checked.
 pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
+    if config.name.trim().is_empty() {
+        return fail(
+            "name",
+            "is empty: name the scene (it titles the report and logs)",
+        );
+    }
+    if config.output.trim().is_empty() {
+        return fail(
+            "output",
+            "is empty: give the run folder (an empty one would write into the working directory)",
+        );
+    }
     // train
     let t = &config.train;
     nonzero("train.iterations", t.iterations)?;
