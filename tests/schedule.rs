@@ -394,6 +394,13 @@ fn synthetic_tad_scene_is_short_lived_fast_and_deterministic() {
         .map(|m| m.iter().filter(|&&d| d).count())
         .sum();
     assert!(dynamic > 0, "the held-out camera sees the moving objects");
+    // Every training view has an object mask for carving, and it holds each view's dynamic
+    // pixels (the moving objects are objects).
+    for view in &first.train {
+        let objects = view.foreground.as_ref().expect("object masks for carving");
+        let dynamic = view.dynamic_mask.as_ref().unwrap();
+        assert!(dynamic.iter().zip(objects).all(|(&d, &o)| !d || o));
+    }
 }
 
 /// Coarse-to-fine (`train.coarse_downscale: 2`, `coarse_until: 4`): iterations 1–4 render and

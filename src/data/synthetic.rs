@@ -62,6 +62,12 @@ pub struct SyntheticScene {
     /// Anti-aliasing: `s × s` rays per pixel on a regular grid, averaged (default 2).
     #[serde(default = "default_supersample")]
     pub supersample: u32,
+    /// Give every view a foreground mask (the pixels that show an object, not the floor or
+    /// the sky), like the `seg/` masks of a Panoptic capture, so that `init.method: Auto`
+    /// carves the objects' visual hull at every anchor frame instead of scattering random
+    /// points (default false).
+    #[serde(default)]
+    pub foreground_masks: bool,
 }
 
 /// Cameras evenly spaced on a horizontal circle, all looking at a common target.
@@ -280,6 +286,15 @@ impl Placed<'_> {
 
 /// What a ray hit first.
 #[derive(Clone, Copy)]
+/// What one ray of the ray caster sees.
+struct RayHit {
+    colour: Vec3,
+    /// The surface belongs to a dynamic object.
+    dynamic: bool,
+    /// The surface belongs to an object (not the floor; the sky is no surface).
+    object: bool,
+}
+
 enum Target {
     Floor,
     Object(usize),
@@ -386,6 +401,13 @@ impl SyntheticScene {
     /// dynamic when, for any of its `supersample²` rays, the first surface hit belongs to a
     /// dynamic object. The scene should be valid (see [`SyntheticScene::validate`]).
     pub fn render(&self, camera: &Camera, t: f32) -> (Image, Vec<bool>) {
+        let (image, dynamic, _) = self.render_with_objects(camera, t);
+        (image, dynamic)
+    }
+
+    /// [`SyntheticScene::render`], plus the object mask: a pixel is set when any of its rays
+    /// first hits an object (not the floor or the sky).
+    pub fn render_with_objects(&self, camera: &Camera, t: f32) -> (Image, Vec<bool>, Vec<bool>) {
         let origin = camera.center();
         let placed: Vec<Placed> = self
             .objects
@@ -420,10 +442,12 @@ impl SyntheticScene {
         let light = LIGHT.normalize();
         let mut data = Vec::with_capacity(width * height);
         let mut mask = Vec::with_capacity(width * height);
+        let mut objects = Vec::with_capacity(width * height);
         for y in 0..height {
             for x in 0..width {
                 let mut sum = Vec3::ZERO;
                 let mut dynamic = false;
+                let mut object = false;
                 for j in 0..s {
                     let v = y as f32 + (j as f32 + 0.5) * step;
                     for i in 0..s {
@@ -434,13 +458,15 @@ impl SyntheticScene {
                             1.0,
                         );
                         let dir = (camera_to_world * camera_dir).normalize();
-                        let (colour, hit_dynamic) = self.trace(&placed, origin, dir, light);
-                        sum += colour;
-                        dynamic |= hit_dynamic;
+                        let hit = self.trace(&placed, origin, dir, light);
+                        sum += hit.colour;
+                        dynamic |= hit.dynamic;
+                        object |= hit.object;
                     }
                 }
                 data.push((sum * weight).clamp(Vec3::ZERO, Vec3::ONE).to_array());
                 mask.push(dynamic);
+                objects.push(object);
             }
         }
         (
@@ -450,11 +476,12 @@ impl SyntheticScene {
                 data,
             },
             mask,
+            objects,
         )
     }
 
-    /// Colour seen along one ray, and whether the surface hit belongs to a dynamic object.
-    fn trace(&self, placed: &[Placed], origin: Vec3, dir: Vec3, light: Vec3) -> (Vec3, bool) {
+    /// What one ray sees.
+    fn trace(&self, placed: &[Placed], origin: Vec3, dir: Vec3, light: Vec3) -> RayHit {
         let mut nearest = f32::INFINITY;
         let mut target = None;
         if let Some(floor) = &self.floor
@@ -472,7 +499,11 @@ impl SyntheticScene {
             }
         }
         let Some(target) = target else {
-            return (Vec3::from(self.background), false);
+            return RayHit {
+                colour: Vec3::from(self.background),
+                dynamic: false,
+                object: false,
+            };
         };
         let point = origin + nearest * dir;
         let (albedo, normal, dynamic) = match target {
@@ -515,7 +546,11 @@ impl SyntheticScene {
             normal
         };
         let shade = AMBIENT + DIFFUSE * normal.dot(light).max(0.0);
-        (albedo * shade, dynamic)
+        RayHit {
+            colour: albedo * shade,
+            dynamic,
+            object: matches!(target, Target::Object(_)),
+        }
     }
 
     /// Renders every camera × frame (frame `f` at time `f / (frames − 1)`) in parallel.
@@ -542,11 +577,11 @@ impl SyntheticScene {
                 available as f64 / 1e9
             ));
         }
-        let rendered: Vec<(Image, Vec<bool>)> = (0..cameras.len() * frames)
+        let rendered: Vec<(Image, Vec<bool>, Vec<bool>)> = (0..cameras.len() * frames)
             .into_par_iter()
             .map(|k| {
                 let (camera, frame) = (k / frames, k % frames);
-                self.render(&cameras[camera], frame as f32 / (frames - 1) as f32)
+                self.render_with_objects(&cameras[camera], frame as f32 / (frames - 1) as f32)
             })
             .collect();
         let mut dataset = Dataset {
@@ -554,7 +589,7 @@ impl SyntheticScene {
             frame_count: frames,
             ..Dataset::default()
         };
-        for (k, (image, mask)) in rendered.into_iter().enumerate() {
+        for (k, (image, mask, objects)) in rendered.into_iter().enumerate() {
             let (camera, frame) = (k / frames, k % frames);
             let view = View {
                 camera,
@@ -562,7 +597,7 @@ impl SyntheticScene {
                 time: dataset.frame_time(frame),
                 image: image.to_rgb8(),
                 dynamic_mask: Some(mask),
-                foreground: None,
+                foreground: self.foreground_masks.then_some(objects),
             };
             if self.held_out.contains(&camera) {
                 dataset.test.push(view);
@@ -826,6 +861,7 @@ pub fn demo_scene() -> SyntheticScene {
             },
         ],
         supersample: 2,
+        foreground_masks: false,
     }
 }
 
@@ -851,6 +887,7 @@ mod tests {
             floor: None,
             objects,
             supersample: 2,
+            foreground_masks: false,
         }
     }
 
@@ -1024,13 +1061,17 @@ mod tests {
         assert!(floor_scene.is_dynamic(1));
         assert!(floor_scene.is_dynamic(2));
         let camera = Camera::look_at(Vec3::new(0.0, 0.5, 5.0), Vec3::ZERO, Vec3::Y, 96, 80, 1.0);
-        let (image, mask) = floor_scene.render(&camera, 0.5);
+        let (image, mask, objects) = floor_scene.render_with_objects(&camera, 0.5);
         let still = pixel_of(&camera, Vec3::new(-1.0, 0.0, 0.0));
         let moving = pixel_of(&camera, floor_scene.objects[1].position_at(0.5));
         let spinning = pixel_of(&camera, Vec3::new(0.0, 1.0, 0.0));
         let floor = pixel_of(&camera, Vec3::new(0.0, -1.0, 2.0));
         assert!(!mask[still] && mask[moving] && mask[spinning] && !mask[floor]);
         assert!(!mask[0], "background corner");
+        // The object mask (foreground for carving) holds every object, static or not, and
+        // neither the floor nor the sky.
+        assert!(objects[still] && objects[moving] && objects[spinning]);
+        assert!(!objects[floor] && !objects[0]);
         assert!(
             image.data[moving][0] > 0.3 && image.data[moving][1] < 0.2,
             "the moving sphere is drawn there"
