@@ -843,3 +843,43 @@ fn resume_refuses_an_edited_scene_file() {
     ]);
     assert!(run.join("model.safetensors").is_file());
 }
+
+/// One clear line for common slips: a path that does not exist, an output folder that is a
+/// file, and `eval` of a run that has not finished (pointing to --resume).
+#[test]
+fn common_slips_get_one_clear_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let stderr = run_fails(&["-q", "render", "no/such/run"]);
+    assert!(
+        stderr.contains("no/such/run: no such file or folder"),
+        "{stderr}"
+    );
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "").unwrap();
+    let stderr = run_fails(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "-o",
+        file.to_str().unwrap(),
+    ]);
+    assert!(stderr.contains("is a file, not a folder"), "{stderr}");
+    let run = dir.path().join("run");
+    let run_s = run.to_str().unwrap();
+    run_ok(&[
+        "-q",
+        "train",
+        scene.to_str().unwrap(),
+        "-o",
+        run_s,
+        "--until",
+        "5",
+    ]);
+    let stderr = run_fails(&["-q", "eval", run_s]);
+    assert!(
+        stderr.contains("unfinished run") && stderr.contains("--resume"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+}

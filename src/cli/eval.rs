@@ -126,6 +126,14 @@ pub fn eval(args: EvalCommand, ui: Ui) -> Result<()> {
     eval.check()?;
     let config = load_with_overrides(&run.join("scene.ron"), &overrides)?;
     let model_path = run.join("model.safetensors");
+    if !model_path.is_file() && run.join("checkpoint").is_dir() {
+        bail!(
+            "{} is an unfinished run (no model.safetensors yet): finish it with `tadgs train \
+             --resume {}`; `tadgs render` shows its checkpoint as it is",
+            run.display(),
+            run.display()
+        );
+    }
     let model = Model::load(&model_path)?;
     let mut dataset = load_dataset(&config)?;
     let mismatches = model.mismatches(&config, dataset.frame_count);

@@ -60,6 +60,7 @@ impl Input {
             match extension.as_deref() {
                 Some("ply") => (read_splat_ply(path)?.into_static_model(), None),
                 Some("safetensors") => (Model::load(path)?, None),
+                _ if !path.exists() => bail!("{}: no such file or folder", path.display()),
                 _ => bail!(
                     "{}: expected a run folder, a model .safetensors file or a splat .ply file",
                     path.display()

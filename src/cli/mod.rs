@@ -71,6 +71,12 @@ pub fn load_dataset(config: &SceneConfig) -> Result<Dataset> {
 
 /// Creates folder `dir` and its parents.
 pub fn create_dir(dir: &Path) -> Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        anyhow::bail!(
+            "{} is a file, not a folder: choose another path",
+            dir.display()
+        );
+    }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))
 }
 

@@ -499,8 +499,11 @@ fn read_gaussian_states(
         .get("iteration")
         .and_then(|s| s.parse::<u32>().ok());
     if iteration != Some(state.iteration) {
+        let written = iteration.map_or("no recorded iteration".into(), |i| {
+            format!("written at iteration {i}")
+        });
         return Err(invalid(format!(
-            "written at iteration {iteration:?}, but {STATE_FILE} is from iteration {}",
+            "{written}, but {STATE_FILE} is from iteration {}",
             state.iteration
         )));
     }
