@@ -426,8 +426,6 @@ fn export_render_and_info_on_a_trained_run() {
         four_d.to_str().unwrap(),
         "--camera",
         camera.to_str().unwrap(),
-        "--frames",
-        "1",
         "--time",
         "0.5",
         "-o",

@@ -47,7 +47,7 @@ pub struct RenderCommand {
     #[command(flatten)]
     pub cameras: CameraSource,
     /// Number of frames. Default: 120 for --orbit and --camera, the sequence's frames for
-    /// --heldout, the number of keys for --path.
+    /// --heldout, the number of keys for --path, 1 for a .png output.
     #[arg(long, value_name = "N")]
     pub frames: Option<usize>,
     /// Show every frame at this normalised time in [0, 1] instead of sweeping from 0 to 1
@@ -108,7 +108,16 @@ fn sweep(k: usize, n: usize) -> f32 {
     }
 }
 
-pub fn render(args: RenderCommand, ui: Ui) -> Result<()> {
+pub fn render(mut args: RenderCommand, ui: Ui) -> Result<()> {
+    let to_png = args
+        .output
+        .as_ref()
+        .and_then(|p| p.extension())
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if to_png && args.frames.is_none() {
+        // One image is one frame.
+        args.frames = Some(1);
+    }
     if let Some(n) = args
         .frames
         .filter(|n| !(1..=tadgs::data::MAX_FRAMES).contains(n))
