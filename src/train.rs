@@ -109,6 +109,14 @@ pub fn insert_render_resources(
             // `GpuRasterizer` resource remains available to custom worlds.
             let gpu = GpuTraining::new()?;
             tracing::info!("GPU backend: {}", gpu.describe());
+            if gpu.is_software() {
+                // A warning, so it shows under -q too: the run works but crawls.
+                tracing::warn!(
+                    "the GPU backend runs on a software adapter, {}: expect it to be far slower \
+                     than the CPU backend (`--backend cpu`); install the GPU's driver to use it",
+                    gpu.describe()
+                );
+            }
             world.insert_resource(gpu);
             world.insert_resource(Backend::Gpu)
         }

@@ -133,6 +133,11 @@ impl GpuContext {
         })
     }
 
+    /// Whether the adapter is a software rasterizer on the CPU (lavapipe, llvmpipe, WARP).
+    pub fn is_software(&self) -> bool {
+        self.adapter.device_type == wgpu::DeviceType::Cpu
+    }
+
     /// "name (backend, device type)" of the adapter in use.
     pub fn describe(&self) -> String {
         format!(

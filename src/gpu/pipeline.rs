@@ -188,6 +188,11 @@ impl GpuTraining {
         format!("{} (GPU-resident training)", self.raster.describe())
     }
 
+    /// Whether the adapter is a software rasterizer on the CPU.
+    pub fn is_software(&self) -> bool {
+        self.gpu.is_software()
+    }
+
     /// Number of Gaussians on the GPU.
     pub fn len(&self) -> usize {
         self.count
