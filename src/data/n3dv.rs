@@ -366,7 +366,14 @@ fn find_frame_sources(root: &Path) -> Result<Vec<(String, FrameSource)>, DataErr
     if !root.is_dir() {
         return Err(DataError::io(
             root,
-            std::io::Error::new(std::io::ErrorKind::NotFound, "no such folder"),
+            std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                if root.exists() {
+                    "a file, but data.path names the dataset's folder"
+                } else {
+                    "no such folder"
+                },
+            ),
         ));
     }
     let mut names: Vec<String> = Vec::new();

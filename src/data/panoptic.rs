@@ -286,7 +286,14 @@ fn check_source(source: &PanopticSource, root: &Path) -> Result<(), DataError> {
     if !root.is_dir() {
         return Err(DataError::io(
             root,
-            std::io::Error::new(std::io::ErrorKind::NotFound, "no such folder"),
+            std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                if root.exists() {
+                    "a file, but data.path names the dataset's folder"
+                } else {
+                    "no such folder"
+                },
+            ),
         ));
     }
     Ok(())
