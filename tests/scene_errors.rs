@@ -758,3 +758,63 @@ fn relative_paths_resolve_beside_the_scene_file() {
         std::env::current_dir().unwrap().join("elsewhere/mutant")
     );
 }
+
+/// Numbers a scene file may hold that break arithmetic: huge, tiny, zero, negative, not finite.
+fn extreme_number() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        1 => Just(0.0f32),
+        1 => Just(-1.0),
+        1 => Just(1e20),
+        1 => Just(-1e20),
+        1 => Just(1e-30),
+        1 => Just(f32::NAN),
+        1 => Just(f32::INFINITY),
+        1 => Just(f32::MAX),
+        // Ordinary values most of the time, so that many cases get past validation.
+        24 => 0.5f32..4.0,
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(128))]
+
+    /// Property: a synthetic scene with extreme camera and object numbers either is refused
+    /// (by validation, data generation or initialisation, as an error) or trains a step;
+    /// nothing on the way panics. (A camera ring of radius 1e20 once panicked in
+    /// initialisation.)
+    #[test]
+    fn extreme_scene_numbers_are_errors_not_panics(
+        radius in extreme_number(),
+        height in extreme_number(),
+        target in extreme_number(),
+        fov in extreme_number(),
+        size in extreme_number(),
+        position in extreme_number(),
+    ) {
+        let mut synthetic = tadgs::data::synthetic::demo_scene();
+        (synthetic.frames, synthetic.width, synthetic.height, synthetic.supersample) = (3, 8, 6, 1);
+        synthetic.cameras.count = 3;
+        synthetic.held_out = vec![2];
+        synthetic.cameras.radius = radius;
+        synthetic.cameras.height = height;
+        synthetic.cameras.target = [target, 0.0, 0.0];
+        synthetic.cameras.fov_x_degrees = fov;
+        synthetic.objects.truncate(1);
+        synthetic.objects[0].shape = tadgs::data::synthetic::Shape::Sphere { radius: size };
+        synthetic.objects[0].path[0].position = [position, 0.0, 0.0];
+        let mut config = SceneConfig::new("extreme", DataSource::Synthetic(synthetic));
+        config.init.points_per_anchor = 20;
+        config.train.iterations = 2;
+        if validate(&config).is_err() {
+            return Ok(());
+        }
+        let Ok(dataset) = tadgs::data::load(&config.data) else {
+            return Ok(());
+        };
+        let Ok(mut trainer) = tadgs::train::Trainer::try_new(&config, std::sync::Arc::new(dataset))
+        else {
+            return Ok(());
+        };
+        trainer.step();
+    }
+}
