@@ -156,6 +156,7 @@ fn assert_error_mentions(error: &DataError, file: &str, needles: &[&str]) {
         message.contains(file),
         "error does not name {file}: {message}"
     );
+    assert!(!message.contains('\n'), "error is not one line: {message}");
     for needle in needles {
         assert!(
             message.contains(needle),
@@ -1006,6 +1007,11 @@ fn ply_malformed_corpus() {
         .collect();
     let cases: Vec<(&str, Vec<u8>, &[&str])> = vec![
         ("empty file", Vec::new(), &["invalid PLY header"]),
+        (
+            "misspelt property type (the parser's own message spans lines)",
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty floot x\nend_header\n1\n".to_vec(),
+            &["invalid PLY header", "Line 4", "property floot x"],
+        ),
         (
             "no magic line",
             b"format ascii 1.0\nelement vertex 1\nend_header\n".to_vec(),

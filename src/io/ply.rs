@@ -268,6 +268,14 @@ pub fn read_splat_ply(path: &Path) -> Result<SplatCloud, PlyError> {
     Ok(SplatCloud { sh_degree, splats })
 }
 
+/// The PLY parser's message on one line: the parser's internal state (its `Error:` part,
+/// with the set of tokens it expected) is left out, the line it could not read is kept.
+fn one_line(error: &dyn std::fmt::Display) -> String {
+    let text = error.to_string();
+    let text = text.split("\n\tError:").next().unwrap_or(&text);
+    text.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
 /// Reads the `vertex` element of a PLY file: `check` sees its definition first (to reject
 /// files that lack properties); elements before it are parsed and dropped.
 pub(crate) fn read_vertex_element<V: PropertyAccess, E>(
@@ -281,7 +289,7 @@ pub(crate) fn read_vertex_element<V: PropertyAccess, E>(
     let vertex_parser = Parser::<V>::new();
     let header = vertex_parser
         .read_header(&mut reader)
-        .map_err(|e| format_error(format!("invalid PLY header: {e}")))?;
+        .map_err(|e| format_error(format!("invalid PLY header: {}", one_line(&e))))?;
     let Some(vertex_def) = header.elements.get("vertex") else {
         let found: Vec<&str> = header.elements.keys().map(String::as_str).collect();
         return Err(format_error(format!(
@@ -293,8 +301,9 @@ pub(crate) fn read_vertex_element<V: PropertyAccess, E>(
     for (name, element_def) in &header.elements {
         let body_error = |e: ply_rs_bw::parser::ParseError| {
             format_error(format!(
-                "truncated or malformed PLY body in element `{name}` ({} declared): {e}",
-                element_def.count
+                "truncated or malformed PLY body in element `{name}` ({} declared): {}",
+                element_def.count,
+                one_line(&e)
             ))
         };
         if name == "vertex" {
