@@ -351,28 +351,20 @@ fn export_render_and_info_on_a_trained_run() {
         assert!(stderr.contains(says), "{args:?}: {stderr}");
     }
     // Sizes from input are checked before anything that large is allocated.
-    let stderr = run_fails(&[
-        "-q",
-        "train",
-        scene.to_str().unwrap(),
-        "-o",
-        refused_s,
-        "--set",
-        "data.width=100000",
-    ]);
-    assert!(stderr.contains("16384"), "{stderr}");
-    let stderr = run_fails(&[
-        "-q",
-        "train",
-        scene.to_str().unwrap(),
-        "-o",
-        refused_s,
-        "--set",
-        "data.width=16384",
-        "--set",
-        "data.height=16384",
-    ]);
-    assert!(stderr.contains("memory available"), "{stderr}");
+    for (sets, says) in [
+        (&["data.width=100000"][..], "16384"),
+        (
+            &["data.width=16384", "data.height=16384"][..],
+            "memory available",
+        ),
+    ] {
+        let mut full = vec!["-q", "train", scene.to_str().unwrap(), "-o", refused_s];
+        for set in sets {
+            full.extend(["--set", set]);
+        }
+        let stderr = run_fails(&full);
+        assert!(stderr.contains(says), "{sets:?}: {stderr}");
+    }
     let out = tadgs(&[
         "-q",
         "render",
@@ -648,6 +640,21 @@ fn gpu_trained_run_saves_evaluates_resumes_and_exports() {
     assert!(image::open(&png).unwrap().width() > 0);
 }
 
+/// A temporary folder holding the tiny scene, the scene's path, and a run folder path in it.
+fn tiny_run() -> (tempfile::TempDir, String, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path()).to_str().unwrap().to_owned();
+    let run = dir.path().join("run");
+    (dir, scene, run)
+}
+
+/// `tadgs -q train SCENE -o RUN EXTRA..`, which must succeed.
+fn train_tiny(scene: &str, run: &Path, extra: &[&str]) {
+    let mut args = vec!["-q", "train", scene, "-o", run.to_str().unwrap()];
+    args.extend(extra);
+    run_ok(&args);
+}
+
 fn run_fails(args: &[&str]) -> String {
     let out = tadgs(args);
     assert_eq!(out.status.code(), Some(1), "{args:?} should fail");
@@ -660,9 +667,8 @@ fn run_fails(args: &[&str]) -> String {
 /// own folder goes on.
 #[test]
 fn training_into_a_folder_with_a_run_is_refused_unless_forced() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
-    let (scene, run) = (scene.to_str().unwrap(), dir.path().join("run"));
+    let (_dir, scene, run) = tiny_run();
+    let scene = scene.as_str();
     let run_arg = run.to_str().unwrap();
     let iteration = || {
         tadgs::io::checkpoint::Checkpoint::load(&run.join("checkpoint"))
@@ -704,46 +710,28 @@ fn training_into_a_folder_with_a_run_is_refused_unless_forced() {
 /// into it fail with a clear error; once released, they work.
 #[test]
 fn a_locked_run_folder_is_refused() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
-    let run = dir.path().join("run");
+    let (_dir, scene, run) = tiny_run();
     let run_arg = run.to_str().unwrap();
     std::fs::create_dir(&run).unwrap();
     let lock = std::fs::File::create(run.join(".tadgs.lock")).unwrap();
     lock.lock().unwrap();
-    let stderr = run_fails(&["-q", "train", scene.to_str().unwrap(), "-o", run_arg]);
+    let stderr = run_fails(&["-q", "train", &scene, "-o", run_arg]);
     assert!(
         stderr.contains("in use by another tadgs process"),
         "{stderr}"
     );
     assert!(!run.join("scene.ron").exists(), "nothing written");
     drop(lock);
-    run_ok(&[
-        "-q",
-        "train",
-        scene.to_str().unwrap(),
-        "-o",
-        run_arg,
-        "--no-report",
-    ]);
+    run_ok(&["-q", "train", &scene, "-o", run_arg, "--no-report"]);
 }
 
 /// `eval` of a run whose scene no longer matches its model (other frame count, other
 /// deformation settings) fails naming the difference and leaves the metrics as they were.
 #[test]
 fn eval_refuses_a_model_of_another_scene() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
-    let run = dir.path().join("run");
+    let (_dir, scene, run) = tiny_run();
     let run_arg = run.to_str().unwrap();
-    run_ok(&[
-        "-q",
-        "train",
-        scene.to_str().unwrap(),
-        "-o",
-        run_arg,
-        "--no-report",
-    ]);
+    run_ok(&["-q", "train", &scene, "-o", run_arg, "--no-report"]);
     let metrics = std::fs::read(run.join("metrics.json")).unwrap();
     let stderr = run_fails(&["-q", "eval", run_arg, "--set", "data.frames=4"]);
     assert!(
@@ -760,10 +748,8 @@ fn eval_refuses_a_model_of_another_scene() {
 /// number; `masks` accepts -o like the other commands.
 #[test]
 fn evaluation_inputs_are_checked_before_training() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
-    let scene = scene.to_str().unwrap();
-    let run = dir.path().join("run");
+    let (dir, scene, run) = tiny_run();
+    let scene = scene.as_str();
     let run_s = run.to_str().unwrap();
     let file = dir.path().join("tiny.ron");
     let file_s = file.to_str().unwrap();
@@ -789,19 +775,9 @@ fn evaluation_inputs_are_checked_before_training() {
 /// scene.ron to match its checkpoint, so the next resume goes on.
 #[test]
 fn resume_refuses_an_edited_scene_file() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
-    let run = dir.path().join("run");
+    let (_dir, scene, run) = tiny_run();
     let run_s = run.to_str().unwrap();
-    run_ok(&[
-        "-q",
-        "train",
-        scene.to_str().unwrap(),
-        "-o",
-        run_s,
-        "--until",
-        "10",
-    ]);
+    run_ok(&["-q", "train", &scene, "-o", run_s, "--until", "10"]);
     let scene_ron = run.join("scene.ron");
     let original = std::fs::read_to_string(&scene_ron).unwrap();
     assert!(original.contains("iterations: 40,"));
@@ -846,8 +822,7 @@ fn resume_refuses_an_edited_scene_file() {
 /// file, and `eval` of a run that has not finished (pointing to --resume).
 #[test]
 fn common_slips_get_one_clear_line() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
+    let (dir, scene, run) = tiny_run();
     let stderr = run_fails(&["-q", "render", "no/such/run"]);
     assert!(
         stderr.contains("no/such/run: no such file or folder"),
@@ -855,26 +830,10 @@ fn common_slips_get_one_clear_line() {
     );
     let file = dir.path().join("a-file");
     std::fs::write(&file, "").unwrap();
-    let stderr = run_fails(&[
-        "-q",
-        "train",
-        scene.to_str().unwrap(),
-        "-o",
-        file.to_str().unwrap(),
-    ]);
+    let stderr = run_fails(&["-q", "train", &scene, "-o", file.to_str().unwrap()]);
     assert!(stderr.contains("is a file, not a folder"), "{stderr}");
-    let run = dir.path().join("run");
-    let run_s = run.to_str().unwrap();
-    run_ok(&[
-        "-q",
-        "train",
-        scene.to_str().unwrap(),
-        "-o",
-        run_s,
-        "--until",
-        "5",
-    ]);
-    let stderr = run_fails(&["-q", "eval", run_s]);
+    train_tiny(&scene, &run, &["--until", "5"]);
+    let stderr = run_fails(&["-q", "eval", run.to_str().unwrap()]);
     assert!(
         stderr.contains("unfinished run") && stderr.contains("--resume"),
         "{stderr}"

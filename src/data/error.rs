@@ -101,6 +101,22 @@ impl DataError {
     }
 }
 
+/// Checks that a dataset's root (`data.path`) is a folder, naming what it is instead.
+pub fn require_folder(root: &Path) -> Result<(), DataError> {
+    if root.is_dir() {
+        return Ok(());
+    }
+    let what = if root.exists() {
+        "a file, but data.path names the dataset's folder"
+    } else {
+        "no such folder"
+    };
+    Err(DataError::io(
+        root,
+        std::io::Error::new(std::io::ErrorKind::NotFound, what),
+    ))
+}
+
 /// Reads an RGB image (PNG/JPEG; alpha dropped) and checks its size when one is expected.
 pub fn read_rgb8(path: &Path, expected: Option<(u32, u32)>) -> Result<image::RgbImage, DataError> {
     let img = open_image(path)?.to_rgb8();

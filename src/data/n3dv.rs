@@ -27,7 +27,7 @@ use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::{check_downscale, read_rgb8};
+use super::error::{check_downscale, read_rgb8, require_folder};
 use super::{Camera, DataError, Dataset, View, frame_time};
 use crate::io::image::box_downscale;
 
@@ -363,19 +363,7 @@ fn pose_to_camera(
 
 /// Cameras found under `root`, in natural name order, each with where its frames come from.
 fn find_frame_sources(root: &Path) -> Result<Vec<(String, FrameSource)>, DataError> {
-    if !root.is_dir() {
-        return Err(DataError::io(
-            root,
-            std::io::Error::new(
-                std::io::ErrorKind::NotFound,
-                if root.exists() {
-                    "a file, but data.path names the dataset's folder"
-                } else {
-                    "no such folder"
-                },
-            ),
-        ));
-    }
+    require_folder(root)?;
     let mut names: Vec<String> = Vec::new();
     let mut add = |name: String| {
         if !names.contains(&name) {

@@ -16,7 +16,7 @@ use glam::{DMat3, DMat4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::{check_downscale, read_mask, read_rgb8, read_text};
+use super::error::{check_downscale, read_mask, read_rgb8, read_text, require_folder};
 use super::{Camera, DataError, Dataset, View, frame_time};
 use crate::io::image::box_downscale;
 
@@ -283,19 +283,7 @@ fn check_source(source: &PanopticSource, root: &Path) -> Result<(), DataError> {
     source
         .check()
         .map_err(|(field, message)| DataError::field(root, field, message))?;
-    if !root.is_dir() {
-        return Err(DataError::io(
-            root,
-            std::io::Error::new(
-                std::io::ErrorKind::NotFound,
-                if root.exists() {
-                    "a file, but data.path names the dataset's folder"
-                } else {
-                    "no such folder"
-                },
-            ),
-        ));
-    }
+    require_folder(root)?;
     Ok(())
 }
 
