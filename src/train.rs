@@ -333,6 +333,10 @@ fn apply_memory_budget(
     Ok(())
 }
 
+/// Gaussians this many scene extents away from the cameras have diverged
+/// ([`Trainer::diverged_count`]).
+pub const DIVERGED_EXTENTS: f32 = 1000.0;
+
 /// The scores of every held-out view and the time spent rendering them (metrics excluded).
 #[derive(Clone, Debug, Default)]
 pub struct Evaluation {
@@ -443,6 +447,24 @@ impl Trainer {
             .iter(&self.world)
             .map(|t| lifespan_fraction(settings.opacity, t.scale, t.center, &settings.warp))
             .collect()
+    }
+
+    /// How many Gaussians have run away: their canonical position is not finite or lies
+    /// farther than [`DIVERGED_EXTENTS`] scene extents from the training cameras' centre,
+    /// where no scene has content. Non-zero means the learning rates are too high for the
+    /// scene (the numeric guard only sees NaN and infinity).
+    pub fn diverged_count(&mut self) -> usize {
+        self.sync();
+        let centre = {
+            let cameras = &self.world.resource::<TrainingViews>().0.cameras;
+            cameras.iter().map(Camera::center).sum::<glam::Vec3>() / cameras.len().max(1) as f32
+        };
+        let limit = DIVERGED_EXTENTS * self.world.resource::<Settings>().extent;
+        self.world
+            .query::<&Position>()
+            .iter(&self.world)
+            .filter(|p| !(glam::Vec3::from(p.mean).distance(centre) <= limit))
+            .count()
     }
 
     fn with_world(world: World) -> Self {

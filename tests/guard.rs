@@ -106,3 +106,30 @@ fn the_fault_names_the_group_and_the_gaussian() {
         "iteration 42: non-finite gradient of the scale parameters (Gaussian #2)"
     );
 }
+
+/// Divergence the guard cannot see (finite but absurd values): a trained tiny scene has no
+/// runaway Gaussian; one moved 10⁴ scene extents away, or to NaN, is counted.
+#[test]
+fn runaway_gaussians_are_counted() {
+    let mut synthetic = tadgs::data::synthetic::demo_scene();
+    (synthetic.frames, synthetic.width, synthetic.height) = (4, 32, 24);
+    let dataset = std::sync::Arc::new(synthetic.build().unwrap());
+    let mut scene =
+        tadgs::scene::SceneConfig::new("runaway", tadgs::scene::DataSource::Synthetic(synthetic));
+    scene.init.points_per_anchor = 100;
+    let mut trainer = tadgs::train::Trainer::new(&scene, dataset);
+    for _ in 0..5 {
+        trainer.step();
+    }
+    assert_eq!(trainer.diverged_count(), 0);
+    let extent = trainer
+        .world
+        .resource::<tadgs::resources::Settings>()
+        .extent;
+    let mut positions = trainer.world.query::<&mut Position>();
+    let mut all: Vec<_> = positions.iter_mut(&mut trainer.world).collect();
+    all[0].mean = [1e4 * extent, 0.0, 0.0];
+    all[1].mean = [f32::NAN, 0.0, 0.0];
+    drop(all);
+    assert_eq!(trainer.diverged_count(), 2);
+}

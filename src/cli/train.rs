@@ -409,6 +409,16 @@ impl Run<'_> {
             scene_text(self.config)?.as_bytes(),
         )?;
         checkpoint.save(&dir)?;
+        // The checkpoint synced the parameters: a cheap moment to look for a runaway.
+        let diverged = self.trainer.diverged_count();
+        if diverged > 0 {
+            tracing::warn!(
+                "iteration {}: {diverged} Gaussians are more than {} scene extents from the \
+                 cameras: training is diverging; lower the learning rates (train.lr.*)",
+                checkpoint.state.iteration,
+                tadgs::train::DIVERGED_EXTENTS
+            );
+        }
         tracing::debug!(
             "checkpoint at iteration {} written to {} in {:.2} s",
             checkpoint.state.iteration,
