@@ -284,8 +284,6 @@ impl Placed<'_> {
     }
 }
 
-/// What a ray hit first.
-#[derive(Clone, Copy)]
 /// What one ray of the ray caster sees.
 struct RayHit {
     colour: Vec3,
@@ -295,6 +293,8 @@ struct RayHit {
     object: bool,
 }
 
+/// What a ray hit first.
+#[derive(Clone, Copy)]
 enum Target {
     Floor,
     Object(usize),
@@ -561,11 +561,12 @@ impl SyntheticScene {
         self.validate()?;
         let cameras = self.cameras();
         let frames = self.frames;
-        // RGB f32 and a mask byte per pixel of every view, checked before any is allocated.
+        // RGB f32 and two mask bytes (dynamic, object) per pixel of every view, checked
+        // before any is allocated.
         let bytes = (cameras.len() * frames) as u64
             * u64::from(self.width)
             * u64::from(self.height)
-            * (12 + 1);
+            * (12 + 2);
         if let Some(available) = crate::budget::available_memory().filter(|&a| bytes > a) {
             return Err(format!(
                 "{} cameras × {frames} frames at {}×{} need {:.1} GB of images, more than the \

@@ -129,7 +129,7 @@ impl Model {
             ours.sh_degree = scene.model.sh_degree;
             if ours != scene.model {
                 found.push(
-                    "the model's deformation settings (`model` of its scene) differ from the                      scene's"
+                    "the model's deformation settings (`model` of its scene) differ from the scene's"
                         .into(),
                 );
             }
