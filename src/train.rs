@@ -53,13 +53,7 @@ pub fn insert_resources(
 ) -> Result<(), GpuError> {
     let first = dataset.train.first();
     let camera = first.map_or(dataset.cameras[0], |v| dataset.cameras[v.camera]);
-    // Held-out cameras must not influence training, not even through the extent.
-    let train_cameras = dataset.training_rig();
-    let extent = scene_extent(if train_cameras.is_empty() {
-        &dataset.cameras
-    } else {
-        &train_cameras
-    });
+    let extent = scene_extent(&dataset.scene_rig());
     insert_render_resources(world, scene, dataset.frame_count, extent, camera)?;
     *world.resource_mut::<ViewSample>() = ViewSample {
         camera,
@@ -455,10 +449,9 @@ impl Trainer {
     /// scene (the numeric guard only sees NaN and infinity).
     pub fn diverged_count(&mut self) -> usize {
         self.sync();
-        let centre = {
-            let cameras = &self.world.resource::<TrainingViews>().0.cameras;
-            cameras.iter().map(Camera::center).sum::<glam::Vec3>() / cameras.len().max(1) as f32
-        };
+        // The centre of the cameras the extent was measured on.
+        let rig = self.world.resource::<TrainingViews>().0.scene_rig();
+        let centre = rig.iter().map(Camera::center).sum::<glam::Vec3>() / rig.len().max(1) as f32;
         let limit = DIVERGED_EXTENTS * self.world.resource::<Settings>().extent;
         self.world
             .query::<&Position>()

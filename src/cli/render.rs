@@ -109,12 +109,13 @@ fn sweep(k: usize, n: usize) -> f32 {
 }
 
 pub fn render(mut args: RenderCommand, ui: Ui) -> Result<()> {
-    let to_png = args
+    // Only a given output can be a .png (the default is a video or a folder).
+    let is_png = args
         .output
         .as_ref()
         .and_then(|p| p.extension())
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    if to_png && args.frames.is_none() {
+    if is_png && args.frames.is_none() {
         // One image is one frame.
         args.frames = Some(1);
     }
@@ -156,9 +157,6 @@ pub fn render(mut args: RenderCommand, ui: Ui) -> Result<()> {
     let is_mp4 = output
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mp4"));
-    let is_png = output
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
     if is_png && shots.len() > 1 {
         bail!(
             "{} is one image but {} frames are rendered: give a folder or a .mp4 file",

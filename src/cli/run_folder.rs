@@ -66,10 +66,10 @@ pub fn existing_run(dir: &Path) -> Option<String> {
     }
     let checkpoint = dir.join("checkpoint");
     if checkpoint.is_dir() {
-        return Some(match Checkpoint::load(&checkpoint) {
-            Ok(c) => format!(
+        return Some(match Checkpoint::load_state(&checkpoint) {
+            Ok(state) => format!(
                 "an unfinished run (checkpoint at iteration {} of {})",
-                c.state.iteration, c.state.scene.train.iterations
+                state.iteration, state.scene.train.iterations
             ),
             Err(_) => "an unfinished run (its checkpoint does not load)".into(),
         });

@@ -141,6 +141,18 @@ impl Dataset {
             .collect()
     }
 
+    /// The cameras that place and size the scene (its extent and centre): the training rig,
+    /// or every camera of a dataset without training views (a render-only dataset). Held-out
+    /// cameras must not influence training, not even through the extent.
+    pub fn scene_rig(&self) -> Vec<Camera> {
+        let rig = self.training_rig();
+        if rig.is_empty() {
+            self.cameras.clone()
+        } else {
+            rig
+        }
+    }
+
     /// Distinct camera indices of the held-out views, in increasing order.
     pub fn test_cameras(&self) -> Vec<usize> {
         distinct_cameras(&self.test)

@@ -320,16 +320,13 @@ impl Checkpoint {
     /// When `dir` is missing and `<dir>.old` exists (a crash while [`Checkpoint::save`]
     /// swapped folders), reads that one.
     pub fn load(dir: &Path) -> Result<Self, CheckpointError> {
-        let old = sibling(dir, "old");
-        if !dir.exists() && old.is_dir() {
-            tracing::warn!(
-                "{} is missing; using {}, left by an interrupted checkpoint write",
-                dir.display(),
-                old.display()
-            );
-            return Self::load_folder(&old);
-        }
-        Self::load_folder(dir)
+        Self::load_folder(&existing_folder(dir))
+    }
+
+    /// Only the state of the checkpoint in `dir` (iteration, scene, counters), checked as
+    /// [`Checkpoint::load`] checks it, without reading the tensors: cheap, for describing a run.
+    pub fn load_state(dir: &Path) -> Result<CheckpointState, CheckpointError> {
+        read_state(&existing_folder(dir))
     }
 
     fn load_folder(dir: &Path) -> Result<Self, CheckpointError> {
@@ -344,30 +341,7 @@ impl Checkpoint {
             message,
         };
 
-        let (state_path, bytes) = read(STATE_FILE)?;
-        let text =
-            String::from_utf8(bytes).map_err(|_| invalid(&state_path, "not UTF-8 text".into()))?;
-        let state: CheckpointState =
-            ron::from_str(&text).map_err(|e| invalid(&state_path, e.to_string()))?;
-        if state.format != CHECKPOINT_FORMAT || state.version != CHECKPOINT_VERSION {
-            return Err(invalid(
-                &state_path,
-                format!(
-                    "format {:?} version {}, this tadgs reads {CHECKPOINT_FORMAT:?} version \
-                     {CHECKPOINT_VERSION}",
-                    state.format, state.version
-                ),
-            ));
-        }
-        if state.rng.restore().is_none() {
-            return Err(invalid(&state_path, "rng.word_pos is not a number".into()));
-        }
-        if state.view_next > state.view_order.len() {
-            return Err(invalid(
-                &state_path,
-                "view_next is past the end of view_order".into(),
-            ));
-        }
+        let state = read_state(dir)?;
 
         let (log_path, bytes) = read(LOG_FILE)?;
         let log: LogFile =
@@ -481,6 +455,50 @@ fn accum_tensors(gaussians: &[GaussianState]) -> [NamedTensor; 2] {
             bytes: counts,
         },
     ]
+}
+
+/// `dir`, or the copy a checkpoint write left beside it when it was interrupted between its
+/// renames (`dir` missing, the old one still there).
+fn existing_folder(dir: &Path) -> PathBuf {
+    let old = sibling(dir, "old");
+    if !dir.exists() && old.is_dir() {
+        tracing::warn!(
+            "{} is missing; using {}, left by an interrupted checkpoint write",
+            dir.display(),
+            old.display()
+        );
+        return old;
+    }
+    dir.to_path_buf()
+}
+
+/// Reads and checks the state file of the checkpoint folder `dir`.
+fn read_state(dir: &Path) -> Result<CheckpointState, CheckpointError> {
+    let state_path = dir.join(STATE_FILE);
+    let invalid = |message: String| CheckpointError::Invalid {
+        path: state_path.clone(),
+        message,
+    };
+    let bytes = std::fs::read(&state_path).map_err(|source| CheckpointError::Read {
+        path: state_path.clone(),
+        source,
+    })?;
+    let text = String::from_utf8(bytes).map_err(|_| invalid("not UTF-8 text".into()))?;
+    let state: CheckpointState = ron::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+    if state.format != CHECKPOINT_FORMAT || state.version != CHECKPOINT_VERSION {
+        return Err(invalid(format!(
+            "format {:?} version {}, this tadgs reads {CHECKPOINT_FORMAT:?} version \
+             {CHECKPOINT_VERSION}",
+            state.format, state.version
+        )));
+    }
+    if state.rng.restore().is_none() {
+        return Err(invalid("rng.word_pos is not a number".into()));
+    }
+    if state.view_next > state.view_order.len() {
+        return Err(invalid("view_next is past the end of view_order".into()));
+    }
+    Ok(state)
 }
 
 /// Reads `tensors.safetensors` and checks it against `state` (iteration, Gaussian count).
