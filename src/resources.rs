@@ -10,6 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::data::{Camera, Dataset};
 use crate::metrics::loss::{LossScratch, LossValue};
 use crate::model::deform::TemporalOpacity;
+use crate::model::exposure::Exposure;
 use crate::model::warp::TimeWarp;
 use crate::raster::{Rasterizer, RenderOutput, Splat, SplatGrad};
 use crate::scene::{
@@ -249,4 +250,93 @@ pub struct LossImage {
     pub d_color: Vec<[f32; 3]>,
     /// Reused working buffers of the loss (SSIM maps, row sums).
     pub scratch: LossScratch,
+    /// The render after the sampled camera's exposure correction, the image the loss compared
+    /// (used only with [`CameraExposures`]).
+    pub corrected: crate::io::image::Image,
+}
+
+/// Per-camera exposure compensation (`train.camera_exposure`), with each camera's Adam state.
+/// Inserted only when enabled; the loss applies the sampled camera's correction and the Adam
+/// stage steps it.
+#[derive(Resource, Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraExposures {
+    /// One per dataset camera, in the dataset's order.
+    pub cameras: Vec<CameraExposure>,
+    /// The camera trained on this iteration and the loss gradient of its correction.
+    #[serde(skip)]
+    pub grad: Option<(usize, Exposure)>,
+}
+
+/// One camera's exposure correction and its Adam moments.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraExposure {
+    /// The correction applied to this camera's renders in the loss.
+    pub exposure: Exposure,
+    /// Whether the camera has training views. The corrections are centred over these; the
+    /// others (held-out cameras) stay at the identity.
+    pub trained: bool,
+    /// Adam's first moments, in [`Exposure::values`] order.
+    pub m: [f32; 6],
+    /// Adam's second moments.
+    pub v: [f32; 6],
+    /// Adam steps taken on this camera (its own bias correction: a camera is trained only on
+    /// the iterations that sample it).
+    pub steps: u32,
+}
+
+impl CameraExposures {
+    /// Identity corrections for `dataset`'s cameras, marking those with training views.
+    pub fn new(dataset: &Dataset) -> Self {
+        let mut cameras = vec![CameraExposure::default(); dataset.cameras.len()];
+        for view in &dataset.train {
+            cameras[view.camera].trained = true;
+        }
+        Self {
+            cameras,
+            grad: None,
+        }
+    }
+
+    /// One line on the learnt corrections: the range of the training cameras' mean gain and
+    /// mean offset, naming the cameras at the ends (dataset camera indices). `None` before any
+    /// camera has been trained.
+    pub fn summary(&self) -> Option<String> {
+        let trained: Vec<(usize, f32, f32)> = self
+            .cameras
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.trained && c.steps > 0)
+            .map(|(i, c)| {
+                let gain = c.exposure.gain().iter().sum::<f32>() / 3.0;
+                let offset = c.exposure.offset.iter().sum::<f32>() / 3.0;
+                (i, gain, offset)
+            })
+            .collect();
+        let by = |key: fn(&(usize, f32, f32)) -> f32| {
+            let min = trained.iter().min_by(|a, b| key(a).total_cmp(&key(b)))?;
+            let max = trained.iter().max_by(|a, b| key(a).total_cmp(&key(b)))?;
+            Some((*min, *max))
+        };
+        let (low_gain, high_gain) = by(|c| c.1)?;
+        let (low_offset, high_offset) = by(|c| c.2)?;
+        Some(format!(
+            "gain {:.3} (camera {}) to {:.3} (camera {}), offset {:+.3} (camera {}) to {:+.3} \
+             (camera {})",
+            low_gain.1,
+            low_gain.0,
+            high_gain.1,
+            high_gain.0,
+            low_offset.2,
+            low_offset.0,
+            high_offset.2,
+            high_offset.0
+        ))
+    }
+
+    /// The correction of camera `index` (the identity for an unknown camera).
+    pub fn exposure(&self, index: usize) -> Exposure {
+        self.cameras
+            .get(index)
+            .map_or_else(Exposure::default, |c| c.exposure)
+    }
 }

@@ -68,6 +68,9 @@ pub fn insert_resources(
             until: train.coarse_until,
         });
     }
+    if train.camera_exposure {
+        world.insert_resource(CameraExposures::new(&dataset));
+    }
     world.insert_resource(TrainingViews(dataset));
     world.insert_resource(ViewOrder::default());
     world.insert_resource(Rng::seeded(scene.train.seed));
@@ -133,6 +136,18 @@ pub enum ResumeError {
         index: usize,
         /// Number of training views in the dataset resumed on.
         views: usize,
+    },
+    /// The checkpoint holds exposure corrections for `saved` cameras, but the data has
+    /// `cameras`: the data changed since the checkpoint was written.
+    #[error(
+        "the checkpoint holds exposure corrections for {saved} cameras, but the data has \
+         {cameras} cameras: the data changed since the checkpoint was written"
+    )]
+    ExposureCameras {
+        /// Cameras in the checkpoint's exposure corrections.
+        saved: usize,
+        /// Cameras in the dataset resumed on.
+        cameras: usize,
     },
     /// The checkpoint's backend could not be opened.
     #[error(transparent)]
@@ -409,6 +424,14 @@ impl Trainer {
         if let Some(&index) = checkpoint.state.view_order.iter().find(|&&i| i >= views) {
             return Err(ResumeError::ViewOrder { index, views });
         }
+        if let Some(exposures) = &checkpoint.state.camera_exposures
+            && exposures.cameras.len() != dataset.cameras.len()
+        {
+            return Err(ResumeError::ExposureCameras {
+                saved: exposures.cameras.len(),
+                cameras: dataset.cameras.len(),
+            });
+        }
         let mut world = World::new();
         insert_resources(&mut world, &checkpoint.state.scene, dataset)?;
         checkpoint.restore_into(&mut world);
@@ -423,8 +446,14 @@ impl Trainer {
 
     /// PSNR of the last training iteration's render against its training image.
     pub fn last_view_psnr(&self) -> f32 {
-        let render = &self.world.resource::<SplatBuffers>().render.image;
-        let target = &self.world.resource::<LossImage>().target;
+        let loss = self.world.resource::<LossImage>();
+        // With exposure compensation the loss saw the corrected render.
+        let render = if self.world.contains_resource::<CameraExposures>() {
+            &loss.corrected
+        } else {
+            &self.world.resource::<SplatBuffers>().render.image
+        };
+        let target = &loss.target;
         if render.data.is_empty() || render.data.len() != target.data.len() {
             return f32::NAN;
         }

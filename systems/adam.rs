@@ -7,8 +7,9 @@ use bevy_ecs::system::ScheduleSystem;
 use crate::components::{
     Adam, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal,
 };
+use crate::model::exposure::Exposure;
 use crate::model::sh::{SH_COEFFS, coeff_count};
-use crate::resources::{Settings, TrainState};
+use crate::resources::{CameraExposures, Settings, TrainState};
 use crate::scene::LearningRates;
 
 /// Adam's first-moment decay.
@@ -147,6 +148,46 @@ pub fn adam_step<P: ParamGroup>(
                 *x -= step_size * m[i] / ((v[i] / bias2).sqrt() + EPSILON);
             }
         });
+}
+
+/// One Adam step on the exposure correction of the camera the loss trained on (see
+/// [`CameraExposures`]), then re-centres the corrections over the training cameras.
+///
+/// Scaling every camera's gain by k while dividing the Gaussians' colours by k (or shifting
+/// offsets against colours) leaves the loss unchanged. Centring pins that freedom: the model
+/// keeps the colours of an average training camera, which is what a held-out camera, drawn
+/// without a correction, is assumed to see.
+pub fn adam_exposure(settings: Res<Settings>, exposures: Option<ResMut<CameraExposures>>) {
+    let Some(mut exposures) = exposures else {
+        return;
+    };
+    let Some((index, grad)) = exposures.grad.take() else {
+        return;
+    };
+    let lr = settings.train.lr.exposure;
+    let camera = &mut exposures.cameras[index];
+    camera.steps += 1;
+    let step = camera.steps.min(i32::MAX as u32) as i32;
+    let bias1 = 1.0 - BETA1.powi(step);
+    let bias2 = 1.0 - BETA2.powi(step);
+    let mut values = camera.exposure.values();
+    for (i, g) in grad.values().into_iter().enumerate() {
+        camera.m[i] = BETA1 * camera.m[i] + (1.0 - BETA1) * g;
+        camera.v[i] = BETA2 * camera.v[i] + (1.0 - BETA2) * g * g;
+        values[i] -= lr / bias1 * camera.m[i] / ((camera.v[i] / bias2).sqrt() + EPSILON);
+    }
+    camera.exposure = Exposure::from_values(values);
+
+    let trained = exposures.cameras.iter().filter(|c| c.trained);
+    let count = trained.clone().count().max(1) as f32;
+    let mean: [f32; 6] = trained.fold([0.0; 6], |sum, c| {
+        let v = c.exposure.values();
+        std::array::from_fn(|i| sum[i] + v[i] / count)
+    });
+    for camera in exposures.cameras.iter_mut().filter(|c| c.trained) {
+        let v = camera.exposure.values();
+        camera.exposure = Exposure::from_values(std::array::from_fn(|i| v[i] - mean[i]));
+    }
 }
 
 /// The Adam systems of every parameter group.

@@ -4,29 +4,52 @@ use bevy_ecs::prelude::*;
 
 use crate::metrics::loss::training_loss;
 use crate::resources::{
-    CoarseViews, LossImage, Settings, SplatBuffers, TrainState, TrainingViews, ViewSample, views_at,
+    CameraExposures, CoarseViews, LossImage, Settings, SplatBuffers, TrainState, TrainingViews,
+    ViewSample, views_at,
 };
 
-/// Compares the render with the ground-truth image of the sampled view.
+/// Compares the render with the ground-truth image of the sampled view. With
+/// [`CameraExposures`] the render is first corrected by the sampled camera's exposure, and the
+/// gradient is chained back through the correction (its own gradient kept for the Adam stage).
 pub fn loss(
     settings: Res<Settings>,
     views: Res<TrainingViews>,
     coarse: Option<Res<CoarseViews>>,
     sample: Res<ViewSample>,
     buffers: Res<SplatBuffers>,
+    exposures: Option<ResMut<CameraExposures>>,
     mut loss: ResMut<LossImage>,
     mut state: ResMut<TrainState>,
 ) {
     let index = sample.view.expect("training views come from the dataset");
     let loss = &mut *loss;
     let dataset = views_at(&views, coarse.as_deref(), state.iteration);
-    dataset.train[index].copy_image_into(&mut loss.target);
-    loss.value = training_loss(
-        &mut loss.scratch,
-        &buffers.render.image,
-        &loss.target,
-        settings.train.lambda_dssim,
-        &mut loss.d_color,
-    );
+    let view = &dataset.train[index];
+    view.copy_image_into(&mut loss.target);
+    let render = &buffers.render.image;
+    let lambda_dssim = settings.train.lambda_dssim;
+    loss.value = match exposures {
+        None => training_loss(
+            &mut loss.scratch,
+            render,
+            &loss.target,
+            lambda_dssim,
+            &mut loss.d_color,
+        ),
+        Some(mut exposures) => {
+            let exposure = exposures.exposure(view.camera);
+            exposure.apply(render, &mut loss.corrected);
+            let value = training_loss(
+                &mut loss.scratch,
+                &loss.corrected,
+                &loss.target,
+                lambda_dssim,
+                &mut loss.d_color,
+            );
+            let grad = exposure.backward(render, &mut loss.d_color);
+            exposures.grad = Some((view.camera, grad));
+            value
+        }
+    };
     state.loss = loss.value;
 }

@@ -81,6 +81,8 @@ pub fn add_training_systems(schedule: &mut Schedule) {
     // A NaN or infinity found after the backward pass must not reach the parameters.
     schedule.configure_sets((Adam, Densify).run_if(guard::healthy));
     schedule.add_systems(adam::adam_systems().run_if(resident::on_cpu).in_set(Adam));
+    // Both backends: the loss, and so the exposure gradient, is on the CPU.
+    schedule.add_systems(adam::adam_exposure.in_set(Adam));
     schedule.add_systems(
         resident::resident_adam
             .run_if(resident::on_gpu)

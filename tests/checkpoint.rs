@@ -39,9 +39,20 @@ fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
 /// moments, densification statistics and counters, and the same RNG position. The stop lies
 /// between two densification steps, with statistics accumulated and the epoch's view order
 /// half used, so each of them matters.
+///
+/// Checked with and without per-camera exposure compensation, whose corrections and Adam
+/// moments must survive the stop too.
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
     let (config, dataset) = tiny_scene();
+    check_resume(&config, &dataset);
+    let mut config = config;
+    config.train.camera_exposure = true;
+    check_resume(&config, &dataset);
+}
+
+fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>) {
+    let config = config.clone();
     let total = config.train.iterations;
     let stop = 17;
 
@@ -64,6 +75,12 @@ fn resumed_run_matches_uninterrupted_run() {
         saved.gaussians.iter().any(|g| g.accum.count > 0),
         "the stop should fall where statistics are being accumulated"
     );
+    if let Some(exposures) = &saved.state.camera_exposures {
+        assert!(
+            exposures.cameras.iter().any(|c| c.steps > 0 && c.m != [0.0; 6]),
+            "the exposure corrections should have been trained before the stop"
+        );
+    }
     saved.save(dir.path()).unwrap();
     drop(first);
 

@@ -442,3 +442,51 @@ fn coarse_to_fine_switches_resolution_after_coarse_until() {
     assert_eq!((camera.width, camera.height), (24, 18));
     assert_eq!(camera.fx, dataset.cameras[view.camera].fx / 2.0);
 }
+
+/// Exposure compensation (`train.camera_exposure`): with camera 0's training images darkened
+/// to 60 %, that camera learns the lowest gain in every channel, clearly below 1 (log-gain
+/// < −0.1), while the corrections stay centred over the training cameras (mean log-gain and
+/// offset 0 to 1e-5), the held-out camera keeps the identity, and the summary line names
+/// camera 0 as the lowest gain.
+#[test]
+fn camera_exposure_learns_a_darker_cameras_gain() {
+    use tadgs::resources::CameraExposures;
+    let (mut config, dataset) = tiny_scene();
+    let mut data = (*dataset).clone();
+    for view in data.train.iter_mut().filter(|v| v.camera == 0) {
+        for value in view.image.iter_mut() {
+            *value = (f32::from(*value) * 0.6).round() as u8;
+        }
+    }
+    config.train.camera_exposure = true;
+    config.train.lr.exposure = 0.02;
+    config.densify.until_iter = 0;
+    let mut trainer = Trainer::new(&config, Arc::new(data));
+    for _ in 0..300 {
+        trainer.step();
+    }
+    let exposures = trainer.world.resource::<CameraExposures>();
+    let held_out = 5;
+    assert!(!exposures.cameras[held_out].trained);
+    assert_eq!(exposures.cameras[held_out].exposure, Default::default());
+    let trained: Vec<_> = exposures.cameras.iter().filter(|c| c.trained).collect();
+    assert_eq!(trained.len(), 15);
+    for i in 0..6 {
+        let mean = trained.iter().map(|c| c.exposure.values()[i]).sum::<f32>() / 15.0;
+        assert!(mean.abs() < 1e-5, "value {i} not centred: mean {mean}");
+    }
+    let dark = exposures.cameras[0].exposure.log_gain;
+    for k in 0..3 {
+        assert!(dark[k] < -0.1, "camera 0 log-gain {dark:?}");
+        for (i, c) in exposures.cameras.iter().enumerate().skip(1) {
+            assert!(
+                c.exposure.log_gain[k] > dark[k],
+                "camera {i} log-gain {:?} not above camera 0's {dark:?}",
+                c.exposure.log_gain
+            );
+        }
+    }
+    let summary = exposures.summary().expect("cameras were trained");
+    assert!(summary.starts_with("gain 0."), "{summary}");
+    assert!(summary.contains("(camera 0) to"), "{summary}");
+}

@@ -9,6 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use tadgs::data::Dataset;
 use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
+use tadgs::resources::CameraExposures;
 use tadgs::report::{DensifyRecord, HeldoutRecord, Report, StepRecord, TrainingLog};
 use tadgs::scene::{SceneConfig, apply_overrides, set_override};
 use tadgs::train::Trainer;
@@ -432,6 +433,14 @@ impl Run<'_> {
     fn finish(mut self, dataset: &Dataset, args: &TrainCommand) -> Result<()> {
         let model = self.trainer.model();
         model.save(&self.output.join("model.safetensors"))?;
+        let exposure = self
+            .trainer
+            .world
+            .get_resource::<CameraExposures>()
+            .and_then(CameraExposures::summary);
+        if let Some(line) = &exposure {
+            tracing::info!("camera exposure: {line}");
+        }
         let keep = if args.no_report { 0 } else { REPORT_VIEWS };
         let (evaluation, views) = evaluate(
             self.trainer,
@@ -463,6 +472,9 @@ impl Run<'_> {
             "densification steps".into(),
             self.log.densify.len().to_string(),
         ));
+        if let Some(line) = exposure {
+            figures.push(("camera exposure (mean per camera)".into(), line));
+        }
         let report = Report {
             title: format!("tadgs run: {}", self.config.name),
             figures,

@@ -32,7 +32,7 @@ use crate::components::{
     spawn_gaussians, split_sh,
 };
 use crate::report::TrainingLog;
-use crate::resources::{DensifyReport, Rng, TrainState, ViewOrder};
+use crate::resources::{CameraExposures, DensifyReport, Rng, TrainState, ViewOrder};
 use crate::scene::SceneConfig;
 
 /// The tensors of a checkpoint.
@@ -147,6 +147,10 @@ pub struct CheckpointState {
     pub rng: RngState,
     /// The scene configuration the run was trained with.
     pub scene: SceneConfig,
+    /// The per-camera exposure corrections and their Adam moments, with
+    /// `train.camera_exposure` (absent otherwise, and in checkpoints from before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_exposures: Option<CameraExposures>,
 }
 
 /// A whole checkpoint in memory.
@@ -189,6 +193,7 @@ impl Checkpoint {
             view_next: order.next,
             rng: RngState::of(&world.resource::<Rng>().0),
             scene: scene.clone(),
+            camera_exposures: world.get_resource::<CameraExposures>().cloned(),
         };
         let mut log = log.clone();
         log.truncate(train.iteration);
@@ -235,6 +240,11 @@ impl Checkpoint {
         // Checked when loading.
         let rng = s.rng.restore().expect("word position checked by load");
         world.resource_mut::<Rng>().0 = rng;
+        if let Some(saved) = &s.camera_exposures
+            && let Some(mut exposures) = world.get_resource_mut::<CameraExposures>()
+        {
+            *exposures = saved.clone();
+        }
     }
 
     /// Writes the checkpoint as folder `dir`, replacing the one there without a moment where

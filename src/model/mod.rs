@@ -1,10 +1,12 @@
 //! Pure per-Gaussian maths (SPEC §2–4): the temporal warp, the deformation at time t
 //! (motion, opacity, rotation, scale), spherical-harmonics colour and EWA projection, each
-//! with a hand-written backward pass checked against finite differences.
+//! with a hand-written backward pass checked against finite differences; and the per-camera
+//! exposure compensation applied to a whole render before the loss ([`exposure`]).
 //!
-//! Everything here is allocation-free and works on one Gaussian at a time.
+//! The per-Gaussian maths is allocation-free and works on one Gaussian at a time.
 
 pub mod deform;
+pub mod exposure;
 pub mod project;
 pub mod sh;
 pub mod warp;
@@ -19,6 +21,7 @@ pub use project::{
     LOW_PASS, NEAR_PLANE, ProjectGrad, Projected, covariance_3d, covariance_3d_backward, project,
     project_backward, quat_to_rotation,
 };
+pub use exposure::Exposure;
 pub use sh::{SH_COEFFS, rgb_to_sh_dc, sh_to_rgb, sh_to_rgb_backward};
 pub use warp::TimeWarp;
 

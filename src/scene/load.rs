@@ -346,6 +346,7 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
         ("scale", lr.scale),
         ("scale_velocity", lr.scale_velocity),
         ("sh_dc", lr.sh_dc),
+        ("exposure", lr.exposure),
     ];
     // Adam moves a parameter by about its learning rate per step: above 1 (a whole unit of
     // logit, log-scale or colour, or 1 × the extent for positions, every iteration) training

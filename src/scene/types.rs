@@ -347,6 +347,8 @@ pub struct LearningRates {
     pub sh_dc: f32,
     /// Higher SH bands use sh_dc divided by this.
     pub sh_rest_divisor: f32,
+    /// Per-camera exposure (log-gain and offset per channel, `train.camera_exposure`).
+    pub exposure: f32,
 }
 
 impl Default for LearningRates {
@@ -364,6 +366,7 @@ impl Default for LearningRates {
             scale_velocity: 1.5e-4,
             sh_dc: 2.5e-3,
             sh_rest_divisor: 20.0,
+            exposure: 1e-3,
         }
     }
 }
@@ -403,6 +406,13 @@ pub struct TrainConfig {
     pub coarse_downscale: u32,
     /// Last iteration trained at the coarse resolution (see `coarse_downscale`).
     pub coarse_until: u32,
+    /// Learn an affine colour per training camera (`exp(log_gain)·render + offset` per
+    /// channel, applied before the loss) that absorbs the cameras' differences in exposure and
+    /// white balance, so that the Gaussians need not average them into blur. For multi-camera
+    /// captures; held-out cameras are rendered without a correction. The corrections are kept
+    /// centred (mean log-gain and offset 0 over the training cameras), so the model's colours
+    /// are those of an average training camera.
+    pub camera_exposure: bool,
     /// Learning rates per parameter group.
     pub lr: LearningRates,
     /// Which backend renders and back-propagates.
@@ -425,6 +435,7 @@ impl Default for TrainConfig {
             sh_increase_interval: 1000,
             coarse_downscale: 1,
             coarse_until: 0,
+            camera_exposure: false,
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
             eval_interval: 0,
