@@ -230,3 +230,30 @@ fn gpu_backend_without_adapter_is_a_clear_error() {
     let saved = std::fs::read_to_string(run.join("scene.ron")).unwrap();
     assert!(saved.contains("backend: Gpu"), "{saved}");
 }
+
+/// An empty or misspelt `WGPU_BACKEND` (which asks wgpu for no backend at all) is an error
+/// that names the variable and its value, and lists the backends it can name.
+#[test]
+fn unknown_wgpu_backend_names_the_variable() {
+    let dir = tempfile::tempdir().unwrap();
+    let (config, _) = small_scene();
+    let scene = dir.path().join("small.ron");
+    let text = ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default()).unwrap();
+    std::fs::write(&scene, text).unwrap();
+    for value in ["", "vulcan"] {
+        let run = dir.path().join(format!("run-{value}"));
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_tadgs"))
+            .args(["-q", "train", scene.to_str().unwrap(), "--backend", "gpu"])
+            .args(["--output", run.to_str().unwrap()])
+            .env("WGPU_BACKEND", value)
+            .output()
+            .expect("the tadgs binary runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success());
+        assert!(
+            stderr.contains(&format!("WGPU_BACKEND=\"{value}\" names no GPU backend"))
+                && stderr.contains("vulkan, metal, dx12, gl"),
+            "{stderr}"
+        );
+    }
+}

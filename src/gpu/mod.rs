@@ -49,6 +49,12 @@ pub enum GpuError {
         "no GPU adapter found ({0}); install a Vulkan, Metal or DX12 driver (Mesa's lavapipe works without a GPU) or use `backend: Cpu`"
     )]
     NoAdapter(#[from] wgpu::RequestAdapterError),
+    /// `WGPU_BACKEND` is set but names no backend wgpu knows (empty, or misspelt), so no
+    /// adapter could ever be found.
+    #[error(
+        "WGPU_BACKEND={0:?} names no GPU backend; set it to one or more of vulkan, metal, dx12, gl (comma-separated), or unset it"
+    )]
+    NoBackend(String),
     /// The adapter was found but refused to create a device with the requested features and
     /// limits.
     #[error("the GPU adapter {adapter} refused a device: {source}")]
@@ -97,8 +103,12 @@ impl GpuContext {
     /// with the adapter's own limits so large scenes fit, and with SHADER_FLOAT32_ATOMIC and
     /// SUBGROUP when `float_atomics` is asked for and the adapter offers both.
     pub fn new(float_atomics: bool) -> Result<Self, GpuError> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        if descriptor.backends.is_empty() {
+            let value = std::env::var("WGPU_BACKEND").unwrap_or_default();
+            return Err(GpuError::NoBackend(value));
+        }
+        let instance = wgpu::Instance::new(descriptor);
         let adapter =
             pollster::block_on(
                 instance.request_adapter(&wgpu::RequestAdapterOptions {
