@@ -51,6 +51,7 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    quiet_wayland_probe();
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
@@ -61,6 +62,17 @@ fn main() -> std::process::ExitCode {
             eprintln!("error: {}", describe(&error));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// Mesa's Vulkan driver probes for a Wayland display when a GPU adapter opens and, on a machine
+/// without a desktop session, prints "XDG_RUNTIME_DIR is invalid or not set in the environment"
+/// twice. tadgs never opens a window, so any absolute folder satisfies the probe, which then
+/// finds no display and stays quiet.
+fn quiet_wayland_probe() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        // SAFETY: called first thing in `main`, before any other thread exists.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
     }
 }
 

@@ -661,6 +661,29 @@ fn run_fails(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// `--backend gpu` on a machine without a desktop session (no XDG_RUNTIME_DIR) prints nothing
+/// from the Vulkan driver's Wayland probe: Mesa's lavapipe printed "XDG_RUNTIME_DIR is invalid
+/// or not set in the environment" twice per run.
+#[test]
+fn gpu_run_without_a_desktop_session_prints_no_driver_noise() {
+    if gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(true)).is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let run = dir.path().join("run");
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args(["-q", "train", scene.to_str().unwrap(), "--backend", "gpu"])
+        .args(["--iterations", "2", "--no-renders", "--no-report"])
+        .args(["--output", run.to_str().unwrap()])
+        .env_remove("XDG_RUNTIME_DIR")
+        .output()
+        .expect("the tadgs binary runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("XDG_RUNTIME_DIR"), "{stderr}");
+}
+
 /// A new run never lands on another one: `train` into a folder holding an unfinished run is
 /// refused (naming the checkpoint's iteration and the ways out) and leaves the checkpoint
 /// untouched; the same over a finished run; `--force` replaces the run; `--resume` into its
