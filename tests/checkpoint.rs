@@ -77,7 +77,10 @@ fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>) {
     );
     if let Some(exposures) = &saved.state.camera_exposures {
         assert!(
-            exposures.cameras.iter().any(|c| c.steps > 0 && c.m != [0.0; 6]),
+            exposures
+                .cameras
+                .iter()
+                .any(|c| c.steps > 0 && c.m != [0.0; 6]),
             "the exposure corrections should have been trained before the stop"
         );
     }

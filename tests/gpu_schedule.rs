@@ -196,11 +196,35 @@ fn gpu_backend_trains_like_cpu_backend() {
             for (i, (a, b)) in cpu.cameras.iter().zip(&gpu.cameras).enumerate() {
                 let (a, b) = (a.exposure.values(), b.exposure.values());
                 for k in 0..6 {
-                    assert!((a[k] - b[k]).abs() <= 0.01, "camera {i}: CPU {a:?} vs GPU {b:?}");
+                    assert!(
+                        (a[k] - b[k]).abs() <= 0.01,
+                        "camera {i}: CPU {a:?} vs GPU {b:?}"
+                    );
                 }
             }
         }
     }
+}
+
+/// Runs `tadgs -q train` on the small scene with `--backend gpu` and `WGPU_BACKEND=value`,
+/// into the run folder `dir/name`; returns the process output and the run folder.
+fn train_on_gpu_with(
+    dir: &std::path::Path,
+    name: &str,
+    value: &str,
+) -> (std::process::Output, std::path::PathBuf) {
+    let (config, _) = small_scene();
+    let scene = dir.join("small.ron");
+    let text = ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default()).unwrap();
+    std::fs::write(&scene, text).unwrap();
+    let run = dir.join(name);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args(["-q", "train", scene.to_str().unwrap(), "--backend", "gpu"])
+        .args(["--output", run.to_str().unwrap()])
+        .env("WGPU_BACKEND", value)
+        .output()
+        .expect("the tadgs binary runs");
+    (out, run)
 }
 
 /// `tadgs train --backend gpu` where no adapter exists (wgpu limited to a backend this
@@ -210,17 +234,7 @@ fn gpu_backend_trains_like_cpu_backend() {
 #[test]
 fn gpu_backend_without_adapter_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
-    let (config, _) = small_scene();
-    let scene = dir.path().join("small.ron");
-    let text = ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default()).unwrap();
-    std::fs::write(&scene, text).unwrap();
-    let run = dir.path().join("run");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tadgs"))
-        .args(["-q", "train", scene.to_str().unwrap(), "--backend", "gpu"])
-        .args(["--output", run.to_str().unwrap()])
-        .env("WGPU_BACKEND", "metal")
-        .output()
-        .expect("the tadgs binary runs");
+    let (out, run) = train_on_gpu_with(dir.path(), "run", "metal");
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
@@ -236,18 +250,8 @@ fn gpu_backend_without_adapter_is_a_clear_error() {
 #[test]
 fn unknown_wgpu_backend_names_the_variable() {
     let dir = tempfile::tempdir().unwrap();
-    let (config, _) = small_scene();
-    let scene = dir.path().join("small.ron");
-    let text = ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default()).unwrap();
-    std::fs::write(&scene, text).unwrap();
     for value in ["", "vulcan"] {
-        let run = dir.path().join(format!("run-{value}"));
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_tadgs"))
-            .args(["-q", "train", scene.to_str().unwrap(), "--backend", "gpu"])
-            .args(["--output", run.to_str().unwrap()])
-            .env("WGPU_BACKEND", value)
-            .output()
-            .expect("the tadgs binary runs");
+        let (out, _) = train_on_gpu_with(dir.path(), &format!("run-{value}"), value);
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success());
         assert!(

@@ -9,8 +9,8 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use tadgs::data::Dataset;
 use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
-use tadgs::resources::CameraExposures;
 use tadgs::report::{DensifyRecord, HeldoutRecord, Report, StepRecord, TrainingLog};
+use tadgs::resources::CameraExposures;
 use tadgs::scene::{SceneConfig, apply_overrides, set_override};
 use tadgs::train::Trainer;
 

@@ -166,7 +166,11 @@ mod tests {
                 render.data[pixel][k],
                 1e-2,
             );
-            assert_grad(&format!("render pixel {pixel} channel {k}"), d_render[pixel][k], fd);
+            assert_grad(
+                &format!("render pixel {pixel} channel {k}"),
+                d_render[pixel][k],
+                fd,
+            );
         }
     }
 }

@@ -17,11 +17,11 @@ pub use deform::{
     rotation_at_backward, scale_at, scale_at_backward, sigmoid, temporal_opacity,
     temporal_opacity_backward,
 };
+pub use exposure::Exposure;
 pub use project::{
     LOW_PASS, NEAR_PLANE, ProjectGrad, Projected, covariance_3d, covariance_3d_backward, project,
     project_backward, quat_to_rotation,
 };
-pub use exposure::Exposure;
 pub use sh::{SH_COEFFS, rgb_to_sh_dc, sh_to_rgb, sh_to_rgb_backward};
 pub use warp::TimeWarp;
 
