@@ -19,6 +19,31 @@ pub const BETA2: f32 = 0.999;
 /// Adam's denominator guard (3DGS uses 1e-15).
 pub const EPSILON: f32 = 1e-15;
 
+/// Adam's bias corrections after `step` updates (counted from 1).
+#[derive(Clone, Copy)]
+struct BiasCorrection {
+    first: f32,
+    second: f32,
+}
+
+impl BiasCorrection {
+    fn after(step: i32) -> Self {
+        Self {
+            first: 1.0 - BETA1.powi(step),
+            second: 1.0 - BETA2.powi(step),
+        }
+    }
+}
+
+/// One Adam update of the value `x` with gradient `g`, moments `m`/`v` and learning rate `lr`.
+#[inline]
+fn adam_update(x: &mut f32, g: f32, m: &mut f32, v: &mut f32, lr: f32, bias: BiasCorrection) {
+    *m = BETA1 * *m + (1.0 - BETA1) * g;
+    *v = BETA2 * *v + (1.0 - BETA2) * g * g;
+    let step_size = lr / bias.first;
+    *x -= step_size * *m / ((*v / bias.second).sqrt() + EPSILON);
+}
+
 /// A parameter group: how each of its values' learning rate is set.
 pub trait ParamGroup: Param {
     /// Per-value learning rates, laid out like the component itself. `position_lr` is the
@@ -128,9 +153,7 @@ pub fn adam_step<P: ParamGroup>(
             settings.extent,
         ),
     );
-    let step = state.iteration.max(1) as i32;
-    let bias1 = 1.0 - BETA1.powi(step);
-    let bias2 = 1.0 - BETA2.powi(step);
+    let bias = BiasCorrection::after(state.iteration.max(1) as i32);
     let active = P::active_values(state.sh_degree);
     params
         .par_iter_mut()
@@ -142,10 +165,7 @@ pub fn adam_step<P: ParamGroup>(
                 .zip(grad.0.values())
                 .enumerate()
             {
-                m[i] = BETA1 * m[i] + (1.0 - BETA1) * g;
-                v[i] = BETA2 * v[i] + (1.0 - BETA2) * g * g;
-                let step_size = rates.values()[i] / bias1;
-                *x -= step_size * m[i] / ((v[i] / bias2).sqrt() + EPSILON);
+                adam_update(x, *g, &mut m[i], &mut v[i], rates.values()[i], bias);
             }
         });
 }
@@ -167,14 +187,17 @@ pub fn adam_exposure(settings: Res<Settings>, exposures: Option<ResMut<CameraExp
     let lr = settings.train.lr.exposure;
     let camera = &mut exposures.cameras[index];
     camera.steps += 1;
-    let step = camera.steps.min(i32::MAX as u32) as i32;
-    let bias1 = 1.0 - BETA1.powi(step);
-    let bias2 = 1.0 - BETA2.powi(step);
+    let bias = BiasCorrection::after(camera.steps.min(i32::MAX as u32) as i32);
     let mut values = camera.exposure.values();
     for (i, g) in grad.values().into_iter().enumerate() {
-        camera.m[i] = BETA1 * camera.m[i] + (1.0 - BETA1) * g;
-        camera.v[i] = BETA2 * camera.v[i] + (1.0 - BETA2) * g * g;
-        values[i] -= lr / bias1 * camera.m[i] / ((camera.v[i] / bias2).sqrt() + EPSILON);
+        adam_update(
+            &mut values[i],
+            g,
+            &mut camera.m[i],
+            &mut camera.v[i],
+            lr,
+            bias,
+        );
     }
     camera.exposure = Exposure::from_values(values);
 
