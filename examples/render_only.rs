@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use bevy_ecs::world::World;
-use tadgs::data::init::scene_extent;
+use tadgs::init::scene_extent;
 use tadgs::io::image::Image;
 use tadgs::io::model::Model;
 use tadgs::resources::{SplatBuffers, TrainState, ViewSample};

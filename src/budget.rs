@@ -21,7 +21,7 @@ use std::mem::size_of;
 
 use crate::components::{Deformed, gaussian_bytes};
 use crate::data::Dataset;
-use crate::data::init::anchor_frames;
+use crate::init::anchor_frames;
 use crate::raster::{PACKED_SPLAT_BYTES, Splat, SplatGrad};
 use crate::resources::DeformedGrad;
 use crate::scene::SceneConfig;

@@ -57,6 +57,7 @@ pub mod budget;
 pub mod components;
 pub mod data;
 pub mod gpu;
+pub mod init;
 pub mod io;
 pub mod metrics;
 pub mod model;

@@ -11,13 +11,13 @@ use crate::components::{
     Color, ColorRest, Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal,
     spawn_gaussians,
 };
-use crate::data::carve::{self, CarveError, CarvedPoints};
-use crate::data::init::{
-    InitPoint, anchor_frames, nearest_neighbour_scales, random_points_in_view, scene_extent,
-};
 use crate::data::pointcloud::read_point_cloud;
 use crate::data::{Camera, DataError, Dataset};
 use crate::gpu::{GpuError, GpuTraining};
+use crate::init::carve::{CarveError, CarvedPoints};
+use crate::init::{
+    InitPoint, anchor_frames, anchor_points, nearest_neighbour_scales, scene_extent,
+};
 use crate::io::checkpoint::Checkpoint;
 use crate::io::image::Image;
 use crate::io::model::Model;
@@ -202,7 +202,7 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
     for frame in anchor_frames(dataset.frame_count, init.anchor_spacing) {
         let mut points = match &file_points {
             Some(points) => CarvedPoints::undivided(points.clone()),
-            None => anchor_points(&dataset, frame, scene, &mut rng)?,
+            None => anchor_points(&dataset, frame, init, &mut rng)?,
         };
         // Without a lifespan of their own, background points are spawned with the others
         // (their nearest neighbours, and so their scales, looked up among all points).
@@ -232,45 +232,6 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
         }
     }
     Ok(spawned)
-}
-
-/// The initial points of one anchor frame by the scene's method (not a point-cloud file);
-/// only carving against foreground masks tells background points apart.
-fn anchor_points(
-    dataset: &Dataset,
-    frame: usize,
-    scene: &SceneConfig,
-    rng: &mut rand_chacha::ChaCha8Rng,
-) -> Result<CarvedPoints, InitError> {
-    let init = &scene.init;
-    let count = init.points_per_anchor;
-    let random = |rng: &mut rand_chacha::ChaCha8Rng| {
-        CarvedPoints::undivided(random_points_in_view(&dataset.training_rig(), count, rng))
-    };
-    match init.method {
-        InitMethod::Random => Ok(random(rng)),
-        InitMethod::Carve => Ok(carve::carved_points(
-            dataset,
-            frame,
-            count,
-            &init.carve,
-            rng,
-        )?),
-        InitMethod::Auto if carve::has_masks(dataset, frame) => {
-            match carve::carved_points(dataset, frame, count, &init.carve, rng) {
-                Ok(points) => Ok(points),
-                Err(error) => {
-                    tracing::warn!("anchor frame {frame}: {error}; using random points instead");
-                    Ok(random(rng))
-                }
-            }
-        }
-        InitMethod::Auto => Ok(match dataset.points.clone() {
-            Some(points) => CarvedPoints::undivided(points),
-            None => random(rng),
-        }),
-        InitMethod::PointCloud(_) => unreachable!("point-cloud files are read once by the caller"),
-    }
 }
 
 /// Spawns one Gaussian per point at temporal centre `center`, for a model of SH degree

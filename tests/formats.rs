@@ -9,9 +9,9 @@ use std::process::Command;
 use glam::{Quat, Vec3};
 use tadgs::data::DataError;
 use tadgs::data::colmap::{self, ColmapModel};
-use tadgs::data::init::InitPoint;
 use tadgs::data::n3dv::{self, N3dvSource};
 use tadgs::data::pointcloud::{read_point_cloud, write_point_cloud_ply};
+use tadgs::init::InitPoint;
 
 // ---------------------------------------------------------------------------------------
 // Helpers

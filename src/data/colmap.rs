@@ -16,8 +16,8 @@ use std::str::FromStr;
 use glam::{DMat3, DQuat, DVec3, Mat4};
 
 use super::error::read_text;
-use super::init::InitPoint;
 use super::{Camera, DataError};
+use crate::init::InitPoint;
 
 /// An intrinsic camera of a COLMAP model (shared by the images taken with it).
 #[derive(Clone, Debug, PartialEq)]

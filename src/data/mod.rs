@@ -1,11 +1,9 @@
 //! Cameras, multi-view video datasets and their readers.
 
 pub mod camera;
-pub mod carve;
 pub mod colmap;
 pub mod dnerf;
 pub mod error;
-pub mod init;
 pub mod n3dv;
 pub mod panoptic;
 pub mod pointcloud;
@@ -63,7 +61,7 @@ pub struct Dataset {
     /// Held-out views for evaluation.
     pub test: Vec<View>,
     /// An initial point cloud shipped with the dataset, if any.
-    pub points: Option<Vec<init::InitPoint>>,
+    pub points: Option<Vec<crate::init::InitPoint>>,
 }
 
 impl Dataset {

@@ -17,7 +17,7 @@ use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult};
 
 use super::DataError;
 use super::colmap;
-use super::init::InitPoint;
+use crate::init::InitPoint;
 
 /// Colour given to points of a cloud that has none.
 pub const DEFAULT_GREY: [f32; 3] = [0.5, 0.5, 0.5];

@@ -301,7 +301,7 @@ impl Orbit {
     /// image-up as up, their mean distance and height, starting at the first camera, with its
     /// image size and field of view.
     pub fn around_rig(cameras: &[Camera]) -> Self {
-        let center = crate::data::init::rig_focus(cameras);
+        let center = crate::init::rig_focus(cameras);
         let up = cameras
             .iter()
             .map(|c| c.rotation().transpose() * Vec3::NEG_Y)

@@ -4,11 +4,11 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::data::carve::CarveSettings;
 use crate::data::dnerf::DNerfSource;
 use crate::data::n3dv::N3dvSource;
 use crate::data::panoptic::PanopticSource;
 use crate::data::synthetic::SyntheticScene;
+use crate::init::carve::CarveSettings;
 
 /// One scene file: where the data comes from and how to train on it.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]

@@ -1,10 +1,17 @@
 //! Initial Gaussians: points per anchor frame, scaled by their nearest-neighbour distances.
+//!
+//! The points are random ([`random_points_in_view`]), carved from the images ([`carve`]), or
+//! a point cloud (the dataset's, or a file read by [`crate::data::pointcloud`]).
+
+pub mod carve;
 
 use glam::Vec3;
 use rand::Rng;
 use rayon::prelude::*;
 
-use super::Camera;
+use self::carve::{CarveError, CarvedPoints};
+use crate::data::{Camera, Dataset};
+use crate::scene::{InitConfig, InitMethod};
 
 /// A coloured point of an initial point cloud.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -120,6 +127,38 @@ pub fn anchor_frames(frame_count: usize, spacing: usize) -> Vec<usize> {
         anchors.push(frame_count - 1);
     }
     anchors
+}
+
+/// The initial points of one anchor frame by the scene's method (not a point-cloud file);
+/// only carving against foreground masks tells background points apart.
+pub(crate) fn anchor_points(
+    dataset: &Dataset,
+    frame: usize,
+    init: &InitConfig,
+    rng: &mut rand_chacha::ChaCha8Rng,
+) -> Result<CarvedPoints, CarveError> {
+    let count = init.points_per_anchor;
+    let random = |rng: &mut rand_chacha::ChaCha8Rng| {
+        CarvedPoints::undivided(random_points_in_view(&dataset.training_rig(), count, rng))
+    };
+    match init.method {
+        InitMethod::Random => Ok(random(rng)),
+        InitMethod::Carve => carve::carved_points(dataset, frame, count, &init.carve, rng),
+        InitMethod::Auto if carve::has_masks(dataset, frame) => {
+            match carve::carved_points(dataset, frame, count, &init.carve, rng) {
+                Ok(points) => Ok(points),
+                Err(error) => {
+                    tracing::warn!("anchor frame {frame}: {error}; using random points instead");
+                    Ok(random(rng))
+                }
+            }
+        }
+        InitMethod::Auto => Ok(match dataset.points.clone() {
+            Some(points) => CarvedPoints::undivided(points),
+            None => random(rng),
+        }),
+        InitMethod::PointCloud(_) => unreachable!("point-cloud files are read once by the caller"),
+    }
 }
 
 #[cfg(test)]
