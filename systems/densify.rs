@@ -13,7 +13,7 @@ use crate::components::{
 };
 use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
-use crate::scene::{DensifyConfig, TatForm};
+use crate::scene::{CapPolicy, DensifyConfig, TatForm};
 
 /// Children of a split have their scales divided by this.
 pub const SPLIT_SCALE_DIVISOR: f32 = 1.6;
@@ -139,8 +139,57 @@ pub type DensifyItem<'a> = (
     Has<ColorRest>,
 );
 
+/// A Gaussian that qualified for cloning or splitting, `strength` = ḡ / threshold (≥ 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Qualified {
+    /// The Gaussian.
+    pub entity: Entity,
+    /// Its mean gradient ḡ divided by its threshold.
+    pub strength: f32,
+}
+
+/// A Gaussian that may give up its place under [`CapPolicy::Replace`]: its spatial opacity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Faint {
+    /// The Gaussian.
+    pub entity: Entity,
+    /// Its spatial opacity σ^s.
+    pub opacity: f32,
+}
+
+/// Chooses which of the `qualified` Gaussians (in storage order) are densified when `room`
+/// more fit under the cap, for the policies that look at all of them at once. Returns the
+/// chosen ones in storage order and the faint Gaussians to prune to make room (`Replace`).
+pub fn choose_under_cap(
+    policy: CapPolicy,
+    mut qualified: Vec<Qualified>,
+    mut faint: Vec<Faint>,
+    mut room: usize,
+) -> (Vec<Qualified>, Vec<Faint>) {
+    let mut replaced = Vec::new();
+    if let CapPolicy::Replace { .. } = policy {
+        let left_out = qualified.len().saturating_sub(room);
+        if left_out > 0 {
+            faint.sort_by(|a, b| a.opacity.total_cmp(&b.opacity));
+            faint.truncate(left_out);
+            room += faint.len();
+            replaced = faint;
+        }
+    }
+    if qualified.len() > room {
+        // Strongest first; the sort is stable, so ties keep storage order.
+        let mut order: Vec<usize> = (0..qualified.len()).collect();
+        order.sort_by(|&a, &b| qualified[b].strength.total_cmp(&qualified[a].strength));
+        order.truncate(room);
+        order.sort_unstable();
+        qualified = order.into_iter().map(|i| qualified[i]).collect();
+    }
+    (qualified, replaced)
+}
+
 /// Clones small and splits large Gaussians whose ḡ exceeds their threshold, prunes transparent
-/// (and optionally oversized) ones, and resets the statistics.
+/// (and optionally oversized) ones, and resets the statistics. Where more qualify than the
+/// population cap leaves room for, `densify.at_cap` decides which ones are densified.
 pub fn densify_and_prune(
     mut commands: Commands,
     settings: Res<Settings>,
@@ -156,14 +205,20 @@ pub fn densify_and_prune(
     };
     let mut population = gaussians.iter().len();
     let prune_big = d.prune_big && state.iteration > d.opacity_reset_interval;
-    // Gaussians that qualified for densification but were refused by the population cap.
+    let replace_below = match d.at_cap {
+        CapPolicy::Replace { max_opacity } => max_opacity,
+        _ => 0.0,
+    };
+    // In storage order: the ones to densify (`InOrder`), or every one that qualified.
+    let mut qualified = Vec::new();
+    let mut faint = Vec::new();
+    // Gaussians that qualified but were refused by the population cap.
     let mut capped = 0usize;
-    for (entity, mut position, rotation, mut scale, opacity, mut accum, has_rest) in
-        gaussians.iter_mut()
-    {
+    for (entity, _, _, scale, opacity, mut accum, _) in gaussians.iter_mut() {
         let stats = std::mem::take(&mut *accum);
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
-        let transparent = sigmoid(opacity.logit) < d.prune_opacity;
+        let sigma = sigmoid(opacity.logit);
+        let transparent = sigma < d.prune_opacity;
         let oversized = prune_big
             && (stats.max_radius > PRUNE_SCREEN_RADIUS || max_scale > PRUNE_WORLD_SCALE * extent);
         if transparent || oversized {
@@ -177,14 +232,48 @@ pub fn densify_and_prune(
         } else {
             d.grad_threshold
         };
-        if mean_gradient(&stats) < threshold {
+        let gradient = mean_gradient(&stats);
+        if gradient < threshold {
+            if sigma < replace_below {
+                faint.push(Faint {
+                    entity,
+                    opacity: sigma,
+                });
+            }
             continue;
         }
-        if population >= d.max_gaussians {
-            capped += 1;
-            continue;
+        if d.at_cap == CapPolicy::InOrder {
+            if population >= d.max_gaussians {
+                capped += 1;
+                continue;
+            }
+            population += 1;
         }
-        population += 1;
+        qualified.push(Qualified {
+            entity,
+            strength: gradient / threshold,
+        });
+    }
+    let mut replaced = 0;
+    if d.at_cap != CapPolicy::InOrder {
+        let room = d.max_gaussians.saturating_sub(population);
+        let wanted = qualified.len();
+        let (chosen, pruned) = choose_under_cap(d.at_cap, qualified, faint, room);
+        for gaussian in &pruned {
+            commands.entity(gaussian.entity).despawn();
+        }
+        replaced = pruned.len();
+        report.pruned += replaced;
+        capped = wanted - chosen.len();
+        qualified = chosen;
+    }
+    for chosen in &qualified {
+        let Ok((entity, mut position, rotation, mut scale, _, _, has_rest)) =
+            gaussians.get_mut(chosen.entity)
+        else {
+            continue;
+        };
+        let max_scale = Vec3::from_array(scale.d0).exp().max_element();
         if max_scale <= d.percent_dense * extent {
             // Clone: an identical copy with fresh optimiser state.
             reset_optimizer(commands.entity(entity).clone_and_spawn(), has_rest);
@@ -217,12 +306,17 @@ pub fn densify_and_prune(
             report.split += 1;
         }
     }
-    if capped > 0 {
+    if capped > 0 || replaced > 0 {
         tracing::info!(
             "iteration {}: population cap densify.max_gaussians = {} reached; {capped} \
-             Gaussians were not cloned or split",
+             Gaussians were not cloned or split{}",
             state.iteration,
-            d.max_gaussians
+            d.max_gaussians,
+            if replaced > 0 {
+                format!(", {replaced} faint ones were pruned to make room")
+            } else {
+                String::new()
+            }
         );
     }
     state.last_densify = report;
@@ -269,6 +363,77 @@ pub fn densify_systems() -> ScheduleConfigs<ScheduleSystem> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn qualified(strengths: &[f32]) -> Vec<Qualified> {
+        strengths
+            .iter()
+            .enumerate()
+            .map(|(i, &strength)| Qualified {
+                entity: Entity::from_raw_u32(i as u32).unwrap(),
+                strength,
+            })
+            .collect()
+    }
+
+    fn faint(opacities: &[f32]) -> Vec<Faint> {
+        opacities
+            .iter()
+            .enumerate()
+            .map(|(i, &opacity)| Faint {
+                entity: Entity::from_raw_u32(100 + i as u32).unwrap(),
+                opacity,
+            })
+            .collect()
+    }
+
+    /// With room for all, every policy densifies every qualifying Gaussian and replaces none.
+    #[test]
+    fn below_the_cap_every_qualifying_gaussian_is_chosen() {
+        let all = qualified(&[1.5, 3.0, 1.1]);
+        for policy in [
+            CapPolicy::Strongest,
+            CapPolicy::Replace { max_opacity: 0.1 },
+        ] {
+            let (chosen, replaced) = choose_under_cap(policy, all.clone(), faint(&[0.01]), 3);
+            assert_eq!(chosen, all);
+            assert!(replaced.is_empty());
+        }
+    }
+
+    /// `Strongest` gives the room to the largest ḡ / threshold, keeps storage order among the
+    /// chosen, and breaks ties by storage order.
+    #[test]
+    fn strongest_takes_the_largest_ratios_in_storage_order() {
+        let all = qualified(&[1.5, 3.0, 1.1, 2.0, 2.0, 1.2]);
+        let (chosen, replaced) = choose_under_cap(CapPolicy::Strongest, all.clone(), vec![], 3);
+        assert_eq!(chosen, vec![all[1], all[3], all[4]]);
+        assert!(replaced.is_empty());
+        let (chosen, _) = choose_under_cap(CapPolicy::Strongest, all.clone(), vec![], 2);
+        assert_eq!(chosen, vec![all[1], all[3]]);
+        let (chosen, _) = choose_under_cap(CapPolicy::Strongest, all, vec![], 0);
+        assert!(chosen.is_empty());
+    }
+
+    /// `Replace` prunes the faintest Gaussians, no more than the qualifying ones left out, and
+    /// gives their places to the strongest of those.
+    #[test]
+    fn replace_prunes_the_faintest_for_the_ones_left_out() {
+        let all = qualified(&[1.5, 3.0, 1.1, 2.0]);
+        let candidates = faint(&[0.04, 0.01, 0.03]);
+        let policy = CapPolicy::Replace { max_opacity: 0.05 };
+        // No room: all three faint ones go, faintest first, and the weakest stays out.
+        let (chosen, replaced) = choose_under_cap(policy, all.clone(), candidates.clone(), 0);
+        assert_eq!(replaced, vec![candidates[1], candidates[2], candidates[0]]);
+        assert_eq!(chosen, vec![all[0], all[1], all[3]]);
+        // Room for three: one faint one is enough.
+        let (chosen, replaced) = choose_under_cap(policy, all.clone(), candidates.clone(), 3);
+        assert_eq!(replaced, vec![candidates[1]]);
+        assert_eq!(chosen, all);
+        // Fewer faint Gaussians than left out.
+        let (chosen, replaced) = choose_under_cap(policy, all.clone(), candidates[..1].to_vec(), 2);
+        assert_eq!(replaced, vec![candidates[0]]);
+        assert_eq!(chosen, vec![all[0], all[1], all[3]]);
+    }
 
     /// VAD equals the plain 3DGS mean when σ(t) = 1 in every view.
     #[test]

@@ -351,6 +351,9 @@ fn validate_names_each_bad_field() {
             c.densify.vad_min_opacity = Some(1.0)
         }),
         ("densify.max_gaussians", |c| c.densify.max_gaussians = 0),
+        ("densify.at_cap.max_opacity", |c| {
+            c.densify.at_cap = CapPolicy::Replace { max_opacity: 0.0 }
+        }),
         ("init.anchor_spacing", |c| c.init.anchor_spacing = 0),
         ("init.points_per_anchor", |c| c.init.points_per_anchor = 0),
         ("init.opacity", |c| c.init.opacity = 1.0),

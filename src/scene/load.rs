@@ -28,7 +28,7 @@ use std::path::Path;
 
 use ron::extensions::Extensions;
 
-use super::types::{DataSource, SceneConfig, TatForm};
+use super::types::{CapPolicy, DataSource, SceneConfig, TatForm};
 
 /// Everything that can go wrong while loading a scene file or applying an override.
 #[derive(Debug, thiserror::Error)]
@@ -296,6 +296,7 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 /// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
 /// `grad_threshold > 0`; `percent_dense > 0`; `interval > 0`; `from_iter ≤ until_iter`;
 /// `prune_opacity` in [0, 1); `vad_min_opacity` in [0, 1) if set; `max_gaussians ≥ 1`;
+/// `at_cap: Replace` `max_opacity` in (0, 1);
 /// `init.anchor_spacing ≥ 1`, `points_per_anchor ≥ 1`, `opacity` in (0, 1),
 /// `lifespan_half_frames > 0`; and the data source's own check (reported under `data`).
 /// Non-finite floats are rejected wherever a float is checked.
@@ -414,6 +415,16 @@ pub fn validate(config: &SceneConfig) -> Result<(), (String, String)> {
         in_range("densify.vad_min_opacity", v, 0.0, true, 1.0, false)?;
     }
     nonzero("densify.max_gaussians", d.max_gaussians)?;
+    if let CapPolicy::Replace { max_opacity } = d.at_cap {
+        in_range(
+            "densify.at_cap.max_opacity",
+            max_opacity,
+            0.0,
+            false,
+            1.0,
+            false,
+        )?;
+    }
 
     // init
     let i = &config.init;

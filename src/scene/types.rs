@@ -293,6 +293,25 @@ pub struct DensifyConfig {
     pub prune_big: bool,
     /// Upper bound on the population; densification stops growing at the cap.
     pub max_gaussians: usize,
+    /// Which Gaussians are densified when more qualify than the cap leaves room for.
+    pub at_cap: CapPolicy,
+}
+
+/// How a densification step chooses when more Gaussians qualify for cloning or splitting than
+/// `max_gaussians` leaves room for. Not part of the paper, which has no cap.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub enum CapPolicy {
+    /// In the population's storage order until the cap is reached (earlier releases): which
+    /// ones get the room is arbitrary.
+    InOrder,
+    /// The ones whose mean gradient exceeds their threshold by the largest factor.
+    Strongest,
+    /// As `Strongest`, and then faint Gaussians (spatial opacity below `max_opacity`) are
+    /// pruned, faintest first, to make room for the qualifying ones that were left out.
+    Replace {
+        /// Spatial opacity σ^s in (0, 1) below which a Gaussian may give up its place.
+        max_opacity: f32,
+    },
 }
 
 impl Default for DensifyConfig {
@@ -314,6 +333,7 @@ impl Default for DensifyConfig {
             prune_opacity: 0.005,
             prune_big: false,
             max_gaussians: 5_000_000,
+            at_cap: CapPolicy::InOrder,
         }
     }
 }
