@@ -390,7 +390,7 @@ fn panoptic_validation_split_replaces_the_held_out_cameras() {
         validation_cameras: Some(vec![]),
         ..source(&dir)
     };
-    assert_eq!(empty.check().unwrap_err().0, "validation_cameras");
+    assert_eq!(empty.check().unwrap_err().path, "validation_cameras");
 }
 
 /// Loads a synthetic dataset after `defect` edited it, expecting an error whose message

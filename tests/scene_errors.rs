@@ -312,13 +312,13 @@ fn tat_form_alpha_must_be_positive() {
         beta: 0.3,
         alpha: 0.0,
     };
-    let (field, _) = validate(&c).unwrap_err();
+    let field = validate(&c).unwrap_err().path;
     assert_eq!(field, "densify.tat_form.alpha");
     c.densify.tat_form = TatForm::Implementation {
         beta: 1.5,
         alpha: 1.0,
     };
-    let (field, _) = validate(&c).unwrap_err();
+    let field = validate(&c).unwrap_err().path;
     assert_eq!(field, "densify.tat_form.beta");
 }
 
@@ -369,7 +369,7 @@ fn validate_names_each_bad_field() {
     for (expected, edit) in cases {
         let mut c = minimal_config();
         edit(&mut c);
-        let (field, _) = validate(&c).expect_err(expected);
+        let field = validate(&c).expect_err(expected).path;
         assert_eq!(&field, expected);
     }
 }

@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use super::error::{check_downscale, open_image, read_text};
 use super::{Camera, DataError, Dataset, View};
 use crate::io::image::box_filter;
+use crate::scene::FieldError;
 
 /// Where and how to read a D-NeRF scene (a scene-file entry).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -36,19 +37,22 @@ pub struct DNerfSource {
 
 impl DNerfSource {
     /// Checks the settings (not the files): downscale, split name and background colour.
-    pub fn check(&self) -> super::SettingCheck {
+    pub fn check(&self) -> Result<(), FieldError> {
         if self.downscale == 0 {
-            return Err(("downscale", "must be at least 1".into()));
+            return Err(FieldError::new("downscale", "must be at least 1"));
         }
         if self.test_split != "test" && self.test_split != "val" {
-            return Err((
+            return Err(FieldError::new(
                 "test_split",
                 format!("must be \"test\" or \"val\", found {:?}", self.test_split),
             ));
         }
         for (i, &c) in self.background.iter().enumerate() {
             if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
-                return Err(("background", format!("channel {i} is {c}, outside [0, 1]")));
+                return Err(FieldError::new(
+                    "background",
+                    format!("channel {i} is {c}, outside [0, 1]"),
+                ));
             }
         }
         Ok(())
@@ -105,7 +109,7 @@ pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
     let root = PathBuf::from(&source.path);
     source
         .check()
-        .map_err(|(field, message)| DataError::field(&root, field, message))?;
+        .map_err(|e| DataError::field(&root, e.path, e.message))?;
     let (train_angle, mut train_frames) = read_transforms(&root, "train")?;
     let (test_angle, test_frames) = read_transforms(&root, &source.test_split)?;
     if train_frames.is_empty() {

@@ -226,10 +226,6 @@ pub fn check_camera_positions(cameras: &[Camera]) -> Result<(), String> {
     Ok(())
 }
 
-/// A setting of a data source that is out of range: the field and what is wrong. Readers
-/// report it as a [`DataError::Field`], scene files as an invalid `data.<field>`.
-pub type SettingCheck = Result<(), (&'static str, String)>;
-
 /// Normalised time of `frame` in a `frame_count`-frame sequence: `frame / (T − 1)`.
 pub fn frame_time(frame: usize, frame_count: usize) -> f32 {
     if frame_count <= 1 {

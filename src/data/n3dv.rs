@@ -30,6 +30,7 @@ use serde::{Deserialize, Serialize};
 use super::error::{check_downscale, read_rgb8, require_folder};
 use super::{Camera, DataError, Dataset, View, frame_time};
 use crate::io::image::box_downscale;
+use crate::scene::FieldError;
 
 /// Where and how to read an N3DV scene (the `n3dv` source of a RON scene file).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -60,15 +61,18 @@ fn default_test_cameras() -> Vec<usize> {
 
 impl N3dvSource {
     /// Checks the settings (not the files): downscale, frame count, held-out cameras.
-    pub fn check(&self) -> super::SettingCheck {
+    pub fn check(&self) -> Result<(), FieldError> {
         if self.downscale == 0 {
-            return Err(("downscale", "must be at least 1".into()));
+            return Err(FieldError::new("downscale", "must be at least 1"));
         }
         if self.frames == Some(0) {
-            return Err(("frames", "must be at least 1 when given".into()));
+            return Err(FieldError::new("frames", "must be at least 1 when given"));
         }
         if self.test_cameras.is_empty() {
-            return Err(("test_cameras", "hold out at least one camera".into()));
+            return Err(FieldError::new(
+                "test_cameras",
+                "hold out at least one camera",
+            ));
         }
         Ok(())
     }
@@ -125,7 +129,7 @@ pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
     let poses_path = root.join(POSES_FILE);
     source
         .check()
-        .map_err(|(field, message)| DataError::field(root, field, message))?;
+        .map_err(|e| DataError::field(root, e.path, e.message))?;
     let poses = read_poses(&poses_path)?;
     for &test in &source.test_cameras {
         if test >= poses.len() {

@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::error::{check_downscale, read_mask, read_rgb8, read_text, require_folder};
 use super::{Camera, DataError, Dataset, View, frame_time};
 use crate::io::image::box_downscale;
+use crate::scene::FieldError;
 
 /// Where and how to read a Dynamic3DGaussians / CMU Panoptic dataset (a scene-file entry).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -53,20 +54,23 @@ pub struct PanopticSource {
 
 impl PanopticSource {
     /// Checks the settings (not the files): stride, frame count and downscale.
-    pub fn check(&self) -> super::SettingCheck {
+    pub fn check(&self) -> Result<(), FieldError> {
         if self.frame_stride == 0 {
-            return Err(("frame_stride", "must be at least 1".into()));
+            return Err(FieldError::new("frame_stride", "must be at least 1"));
         }
         if self.frames == Some(0) {
-            return Err(("frames", "must be at least 1, or None for all".into()));
+            return Err(FieldError::new(
+                "frames",
+                "must be at least 1, or None for all",
+            ));
         }
         if self.downscale == 0 {
-            return Err(("downscale", "must be at least 1".into()));
+            return Err(FieldError::new("downscale", "must be at least 1"));
         }
         if self.validation_cameras.as_ref().is_some_and(Vec::is_empty) {
-            return Err((
+            return Err(FieldError::new(
                 "validation_cameras",
-                "must name at least one training camera, or be None".into(),
+                "must name at least one training camera, or be None",
             ));
         }
         Ok(())
@@ -282,7 +286,7 @@ struct ViewJob {
 fn check_source(source: &PanopticSource, root: &Path) -> Result<(), DataError> {
     source
         .check()
-        .map_err(|(field, message)| DataError::field(root, field, message))?;
+        .map_err(|e| DataError::field(root, e.path, e.message))?;
     require_folder(root)?;
     Ok(())
 }

@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::data::{Camera, Dataset, View};
 use crate::io::image::Image;
+use crate::scene::{Check, FieldError, fail};
 
 /// Ambient share of the shading: a surface facing away from the light keeps this much of its
 /// texture colour.
@@ -301,54 +302,63 @@ enum Target {
 }
 
 impl SyntheticScene {
-    /// Checks every field; the error message names the offending field.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks every field; the error names the offending one (e.g. `cameras.radius`).
+    pub fn validate(&self) -> Result<(), FieldError> {
         if self.frames < 2 {
-            return Err(format!("frames must be at least 2, got {}", self.frames));
+            return fail("frames", format!("must be at least 2, got {}", self.frames));
         }
         for (field, side) in [("width", self.width), ("height", self.height)] {
             if !(1..=super::MAX_IMAGE_SIDE).contains(&side) {
-                return Err(format!(
-                    "{field} must be between 1 and {} pixels, got {side}",
-                    super::MAX_IMAGE_SIDE
-                ));
+                return fail(
+                    field,
+                    format!(
+                        "must be between 1 and {} pixels, got {side}",
+                        super::MAX_IMAGE_SIDE
+                    ),
+                );
             }
         }
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
-            return Err(format!(
-                "supersample must be between 1 and {MAX_SUPERSAMPLE}, got {}",
-                self.supersample
-            ));
+            return fail(
+                "supersample",
+                format!(
+                    "must be between 1 and {MAX_SUPERSAMPLE}, got {}",
+                    self.supersample
+                ),
+            );
         }
         let ring = &self.cameras;
         if ring.count < 2 {
-            return Err(format!(
-                "cameras.count must be at least 2, got {}",
-                ring.count
-            ));
+            return fail(
+                "cameras.count",
+                format!("must be at least 2, got {}", ring.count),
+            );
         }
         positive("cameras.radius", ring.radius)?;
         finite("cameras.height", ring.height)?;
         finite_vec("cameras.target", ring.target)?;
         if !(ring.fov_x_degrees > 0.0 && ring.fov_x_degrees < 180.0) {
-            return Err(format!(
-                "cameras.fov_x_degrees must be in (0, 180), got {}",
-                ring.fov_x_degrees
-            ));
+            return fail(
+                "cameras.fov_x_degrees",
+                format!("must be in (0, 180), got {}", ring.fov_x_degrees),
+            );
         }
         for (i, &c) in self.held_out.iter().enumerate() {
             if c >= ring.count {
-                return Err(format!(
-                    "held_out[{i}] = {c} is not a camera index (cameras.count = {})",
-                    ring.count
-                ));
+                return fail(
+                    &format!("held_out[{i}]"),
+                    format!(
+                        "= {c} is not a camera index (cameras.count = {})",
+                        ring.count
+                    ),
+                );
             }
             if self.held_out[..i].contains(&c) {
-                return Err(format!("held_out lists camera {c} twice"));
+                return fail("held_out", format!("lists camera {c} twice"));
             }
         }
         if self.held_out.len() >= ring.count {
-            return Err("held_out must leave at least one camera for training".into());
+            return fail("held_out", "must leave at least one camera for training");
         }
         colour("background", self.background)?;
         if let Some(floor) = &self.floor {
@@ -558,7 +568,7 @@ impl SyntheticScene {
     /// Training cameras are all but [`SyntheticScene::held_out`], in increasing order; test
     /// cameras are `held_out` in the order given. Dynamic masks are always present.
     pub fn build(&self) -> Result<Dataset, String> {
-        self.validate()?;
+        self.validate().map_err(|e| e.to_string())?;
         let cameras = self.cameras();
         let frames = self.frames;
         // RGB f32 and two mask bytes (dynamic, object) per pixel of every view, checked
@@ -671,41 +681,42 @@ fn texture_colour(texture: &Texture, p: Vec3, face_axis: Option<usize>) -> Vec3 
     Vec3::from(*b).lerp(Vec3::from(*a), 0.5 + 0.5 * w)
 }
 
-fn finite(field: &str, value: f32) -> Result<(), String> {
+fn finite(field: &str, value: f32) -> Check {
     if value.is_finite() {
         Ok(())
     } else {
-        Err(format!("{field} must be finite, got {value}"))
+        fail(field, format!("must be finite, got {value}"))
     }
 }
 
-fn positive(field: &str, value: f32) -> Result<(), String> {
+fn positive(field: &str, value: f32) -> Check {
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err(format!("{field} must be positive and finite, got {value}"))
+        fail(field, format!("must be positive and finite, got {value}"))
     }
 }
 
-fn finite_vec(field: &str, value: [f32; 3]) -> Result<(), String> {
+fn finite_vec(field: &str, value: [f32; 3]) -> Check {
     if value.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(format!("{field} must be finite, got {value:?}"))
+        fail(field, format!("must be finite, got {value:?}"))
     }
 }
 
-fn colour(field: &str, value: [f32; 3]) -> Result<(), String> {
+fn colour(field: &str, value: [f32; 3]) -> Check {
     if value.iter().all(|v| (0.0..=1.0).contains(v)) {
         Ok(())
     } else {
-        Err(format!(
-            "{field} must be a colour with channels in [0, 1], got {value:?}"
-        ))
+        fail(
+            field,
+            format!("must be a colour with channels in [0, 1], got {value:?}"),
+        )
     }
 }
 
-fn validate_texture(field: &str, texture: &Texture) -> Result<(), String> {
+fn validate_texture(field: &str, texture: &Texture) -> Check {
     match texture {
         Texture::Solid(c) => colour(field, *c),
         Texture::Checker { a, b, cells } => {
@@ -718,16 +729,17 @@ fn validate_texture(field: &str, texture: &Texture) -> Result<(), String> {
             colour(&format!("{field}.b"), *b)?;
             positive(&format!("{field}.count"), *count)?;
             if count.fract() != 0.0 {
-                return Err(format!(
-                    "{field}.count must be a whole number so the stripes close up, got {count}"
-                ));
+                return fail(
+                    &format!("{field}.count"),
+                    format!("must be a whole number so the stripes close up, got {count}"),
+                );
             }
             Ok(())
         }
     }
 }
 
-fn validate_object(field: &str, object: &SceneObject) -> Result<(), String> {
+fn validate_object(field: &str, object: &SceneObject) -> Check {
     match &object.shape {
         Shape::Sphere { radius } => positive(&format!("{field}.shape.radius"), *radius)?,
         Shape::Box { half_extents } => {
@@ -738,27 +750,31 @@ fn validate_object(field: &str, object: &SceneObject) -> Result<(), String> {
     }
     validate_texture(&format!("{field}.texture"), &object.texture)?;
     if object.path.is_empty() {
-        return Err(format!("{field}.path must have at least one keyframe"));
+        return fail(&format!("{field}.path"), "must have at least one keyframe");
     }
     for (k, key) in object.path.iter().enumerate() {
         finite(&format!("{field}.path[{k}].time"), key.time)?;
         finite_vec(&format!("{field}.path[{k}].position"), key.position)?;
         if k > 0 && key.time <= object.path[k - 1].time {
-            return Err(format!(
-                "{field}.path[{k}].time = {} must be greater than the previous keyframe's {} \
-                 (keyframes must be sorted in time)",
-                key.time,
-                object.path[k - 1].time
-            ));
+            return fail(
+                &format!("{field}.path[{k}].time"),
+                format!(
+                    "= {} must be greater than the previous keyframe's {} \
+                     (keyframes must be sorted in time)",
+                    key.time,
+                    object.path[k - 1].time
+                ),
+            );
         }
     }
     finite(&format!("{field}.spin"), object.spin)?;
     if let Some((start, end)) = object.visible
         && !(start.is_finite() && end.is_finite() && start < end)
     {
-        return Err(format!(
-            "{field}.visible must be a finite window (start, end) with start < end, got ({start}, {end})"
-        ));
+        return fail(
+            &format!("{field}.visible"),
+            format!("must be a finite window (start, end) with start < end, got ({start}, {end})"),
+        );
     }
     Ok(())
 }
@@ -1262,8 +1278,8 @@ mod tests {
             let mut scene = demo_scene();
             edit(&mut scene);
             let error = scene.validate().expect_err(field);
-            assert!(error.starts_with(field), "{field}: {error}");
-            assert_eq!(scene.build().map(|_| ()), Err(error));
+            assert_eq!(&error.path, field, "{error}");
+            assert_eq!(scene.build().map(|_| ()), Err(error.to_string()));
         }
     }
 
