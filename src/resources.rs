@@ -194,17 +194,6 @@ impl std::fmt::Display for Fault {
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct NumericFault(pub Option<Fault>);
 
-/// Which backend runs the splatting stage.
-#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Backend {
-    /// The tile rasterizer on the CPU (rayon); the default.
-    #[default]
-    Cpu,
-    /// The whole iteration runs on the [`crate::gpu::GpuTraining`] resource (see
-    /// `systems::resident`).
-    Gpu,
-}
-
 /// Gradient of the loss with respect to a deformed Gaussian (at the current time).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DeformedGrad {

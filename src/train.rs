@@ -99,25 +99,23 @@ pub fn insert_render_resources(
         frame: 0,
         time: 0.0,
     });
-    match scene.train.backend {
-        crate::scene::BackendKind::Cpu => world.insert_resource(Backend::Cpu),
-        crate::scene::BackendKind::Gpu => {
-            // The whole iteration on the GPU with resident buffers; the blending-only
-            // `GpuRasterizer` resource remains available to custom worlds.
-            let gpu = GpuTraining::new()?;
-            tracing::info!("GPU backend: {}", gpu.describe());
-            if gpu.is_software() {
-                // A warning, so it shows under -q too: the run works but crawls.
-                tracing::warn!(
-                    "the GPU backend runs on a software adapter, {}: expect it to be far slower \
-                     than the CPU backend (`--backend cpu`); install the GPU's driver to use it",
-                    gpu.describe()
-                );
-            }
-            world.insert_resource(gpu);
-            world.insert_resource(Backend::Gpu)
+    // The systems tell the backends apart by the resources they find: `GpuTraining` runs the
+    // whole iteration on the GPU, its absence the CPU schedule.
+    if scene.train.backend == crate::scene::BackendKind::Gpu {
+        // The whole iteration on the GPU with resident buffers; the blending-only
+        // `GpuRasterizer` resource remains available to custom worlds.
+        let gpu = GpuTraining::new()?;
+        tracing::info!("GPU backend: {}", gpu.describe());
+        if gpu.is_software() {
+            // A warning, so it shows under -q too: the run works but crawls.
+            tracing::warn!(
+                "the GPU backend runs on a software adapter, {}: expect it to be far slower \
+                 than the CPU backend (`--backend cpu`); install the GPU's driver to use it",
+                gpu.describe()
+            );
         }
-    };
+        world.insert_resource(gpu);
+    }
     world.insert_resource(SplatBuffers::default());
     Ok(())
 }

@@ -12,7 +12,7 @@ use tadgs::components::*;
 use tadgs::data::Dataset;
 use tadgs::data::synthetic::demo_scene;
 use tadgs::gpu::GpuRasterizer;
-use tadgs::resources::{Backend, CameraExposures, SplatBuffers, TrainState, ViewSample};
+use tadgs::resources::{CameraExposures, SplatBuffers, TrainState, ViewSample};
 use tadgs::scene::{BackendKind, DataSource, SceneConfig};
 use tadgs::systems::gradient_schedule;
 use tadgs::train::{Trainer, insert_resources, spawn_initial_gaussians};
@@ -40,7 +40,6 @@ fn world_on(backend: BackendKind, config: &SceneConfig, dataset: &Arc<Dataset>) 
     insert_resources(&mut world, &config, dataset.clone()).expect("backend opens");
     if backend == BackendKind::Gpu {
         world.insert_resource(GpuRasterizer::new().expect("GPU opens"));
-        world.insert_resource(Backend::Gpu);
     }
     spawn_initial_gaussians(&mut world, &config).expect("random points initialise");
     world.resource_mut::<TrainState>().sh_degree = 3;

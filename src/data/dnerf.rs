@@ -107,9 +107,7 @@ struct Frame {
 /// one camera per image, foreground from alpha.
 pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
     let root = PathBuf::from(&source.path);
-    source
-        .check()
-        .map_err(|e| DataError::field(&root, e.path, e.message))?;
+    source.check().map_err(|e| DataError::setting(&root, e))?;
     let (train_angle, mut train_frames) = read_transforms(&root, "train")?;
     let (test_angle, test_frames) = read_transforms(&root, &source.test_split)?;
     if train_frames.is_empty() {

@@ -2,6 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::scene::FieldError;
+
 /// A dataset could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
@@ -90,6 +92,11 @@ impl DataError {
             field: field.into(),
             message: message.into(),
         }
+    }
+
+    /// A [`DataError::Field`] for a data source's setting that its own check refused.
+    pub fn setting(path: &Path, error: FieldError) -> Self {
+        Self::field(path, error.path, error.message)
     }
 
     /// A [`DataError::Dataset`] for the dataset at (or the file) `path`.

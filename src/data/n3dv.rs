@@ -127,9 +127,7 @@ struct LoadedFrames {
 pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
     let root = Path::new(&source.path);
     let poses_path = root.join(POSES_FILE);
-    source
-        .check()
-        .map_err(|e| DataError::field(root, e.path, e.message))?;
+    source.check().map_err(|e| DataError::setting(root, e))?;
     let poses = read_poses(&poses_path)?;
     for &test in &source.test_cameras {
         if test >= poses.len() {

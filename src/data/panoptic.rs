@@ -284,9 +284,7 @@ struct ViewJob {
 }
 
 fn check_source(source: &PanopticSource, root: &Path) -> Result<(), DataError> {
-    source
-        .check()
-        .map_err(|e| DataError::field(root, e.path, e.message))?;
+    source.check().map_err(|e| DataError::setting(root, e))?;
     require_folder(root)?;
     Ok(())
 }
