@@ -224,7 +224,7 @@ impl Scanner<'_> {
                         return Some(());
                     }
                 }
-                b'"' => self.string()?,
+                b'"' => self.quoted()?,
                 _ => self.i += 1,
             }
         }
@@ -246,21 +246,13 @@ impl Scanner<'_> {
                 self.i += 1;
                 self.map(depth)?
             }
-            b'"' => {
-                self.string()?;
-                Kind::Leaf
-            }
-            b'\'' => {
-                self.char_lit()?;
+            b'"' | b'\'' => {
+                self.quoted()?;
                 Kind::Leaf
             }
             b'b' if matches!(self.peek_at(1), Some(b'"' | b'\'')) => {
                 self.i += 1;
-                if self.peek() == Some(b'"') {
-                    self.string()?;
-                } else {
-                    self.char_lit()?;
-                }
+                self.quoted()?;
                 Kind::Leaf
             }
             b'b' if self.peek_at(1) == Some(b'r') && self.raw_string_ahead(2) => {
@@ -333,28 +325,15 @@ impl Scanner<'_> {
         }
     }
 
-    /// Consumes `"..."` with escapes, cursor on the opening quote.
-    fn string(&mut self) -> Option<()> {
+    /// Consumes a string `"..."` or a char `'c'` (`'\n'`, `'\u{..}'`) with escapes, cursor on
+    /// the opening quote; it ends at the same quote.
+    fn quoted(&mut self) -> Option<()> {
+        let quote = self.peek()?;
         self.i += 1;
         loop {
             match self.peek()? {
                 b'\\' => self.i += 2,
-                b'"' => {
-                    self.i += 1;
-                    return Some(());
-                }
-                _ => self.i += 1,
-            }
-        }
-    }
-
-    /// Consumes `'c'`, `'\n'`, `'\u{..}'`, cursor on the opening quote.
-    fn char_lit(&mut self) -> Option<()> {
-        self.i += 1;
-        loop {
-            match self.peek()? {
-                b'\\' => self.i += 2,
-                b'\'' => {
+                byte if byte == quote => {
                     self.i += 1;
                     return Some(());
                 }
@@ -491,6 +470,20 @@ mod tests {
         assert_eq!(locate_field(text, "densify.grad_threshold"), Some(6));
         assert_eq!(locate_field(text, "train.background[2]"), Some(9));
         assert_eq!(locate_field(text, "model.sh_degree"), None);
+    }
+
+    /// Char and byte literals end at their own quote, escapes included: brackets and the
+    /// other kind of quote inside them do not open anything.
+    #[test]
+    fn outline_skips_char_and_byte_literals() {
+        let text =
+            "(\n  a: ')',\n  b: '\\'',\n  c: b\"(\\\"'\",\n  d: b'[',\n  q: '\"',\n  e: 2,\n)\n";
+        assert_eq!(locate_field(text, "b"), Some(3));
+        assert_eq!(locate_field(text, "q"), Some(6));
+        assert_eq!(locate_field(text, "e"), Some(7));
+        assert!(parse_single("'\"'").is_some());
+        assert!(parse_single("\"'\"").is_some());
+        assert!(parse_single("'a").is_none());
     }
 
     #[test]
