@@ -1,16 +1,18 @@
 // Shared by the per-Gaussian kernels (deform.wgsl, project.wgsl, param_backward.wgsl): the
 // buffer layouts, the frame uniform, and the forward maths of src/model/ (deform.rs, sh.rs,
 // project.rs) written operation for operation like the CPU reference, so the kernels agree
-// with it to f32 rounding. Each kernel is this file, optionally gaussian_params.wgsl, and its
-// own file, concatenated (src/gpu/deform.rs).
+// with it to f32 rounding. Each kernel is param_layout.wgsl (the parameter sections' WIDTH_,
+// PREFIX_ and OFFSET_ constants, generated from the declaration in src/components.rs), this
+// file, optionally gaussian_params.wgsl, and its own file, concatenated (src/gpu/deform.rs).
 //
 // Buffer layouts (all `array<f32>`; N = frame.count Gaussians):
-// - params (and grads, same layout): structure of arrays by component. Component c occupies
+// - params (and grads, same layout): structure of arrays by section. Section c occupies
 //   [N·PREFIX_c, N·(PREFIX_c + WIDTH_c)), Gaussian i's values at N·PREFIX_c + i·WIDTH_c, in
-//   the field order of the #[repr(C)] component in src/components.rs:
+//   the field order of the #[repr(C)] components in src/components.rs:
 //     Position 3 | Fourier 28 (cos 4×3, sin 4×3, phase 4) | Temporal 3 (center, scale 2) |
-//     Opacity 1 | Rotation 8 (c0 wxyz, c1 wxyz) | Scale 6 (d0, d1) | Color 48 (sh 16×3)
-//   so each section is a byte-for-byte copy of a slice of that component.
+//     Opacity 1 | Rotation 8 (c0 wxyz, c1 wxyz) | Scale 6 (d0, d1) |
+//     Color 48 (Color: sh 0, then ColorRest: sh 1–15, each ×3)
+//   so each section is a byte-for-byte copy of a slice of its components.
 // - warped: WarpedTime records (dt, dtw), stride 2.
 // - deformed: Deformed records (mean 3, rotation 4, scale 3, opacity, color 3), stride 14.
 // - splats: stride 16: mean2d 2, extent 2, conic 3, depth, color 3, opacity, visible (1 or 0),
@@ -20,24 +22,6 @@
 // - ndc_grad_norm: one f32 per Gaussian.
 
 const WORKGROUP: u32 = 64u;
-
-const FOURIER_TERMS: u32 = 4u;
-const SH_COEFFS: u32 = 16u;
-
-const WIDTH_POSITION: u32 = 3u;
-const WIDTH_FOURIER: u32 = 28u;
-const WIDTH_TEMPORAL: u32 = 3u;
-const WIDTH_OPACITY: u32 = 1u;
-const WIDTH_ROTATION: u32 = 8u;
-const WIDTH_SCALE: u32 = 6u;
-const WIDTH_COLOR: u32 = 48u;
-const PREFIX_POSITION: u32 = 0u;
-const PREFIX_FOURIER: u32 = 3u;
-const PREFIX_TEMPORAL: u32 = 31u;
-const PREFIX_OPACITY: u32 = 34u;
-const PREFIX_ROTATION: u32 = 35u;
-const PREFIX_SCALE: u32 = 43u;
-const PREFIX_COLOR: u32 = 49u;
 
 const WARPED_STRIDE: u32 = 2u;
 const DEFORMED_STRIDE: u32 = 14u;

@@ -176,10 +176,14 @@ impl Deformed {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SplatSlot(pub u32);
 
-/// An optimised parameter component: all-`f32` plain data.
+/// An optimised parameter component: all-`f32` plain data, declared in [`param_groups!`].
 pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync + 'static {
-    /// Human-readable group name (for logs and NaN reports).
+    /// Group name: logs, NaN reports, and the tensor names of model files and checkpoints.
     const NAME: &'static str;
+    /// Position of the group in [`PARAM_GROUPS`].
+    const INDEX: usize;
+    /// `f32` values per Gaussian.
+    const FLOATS: usize = std::mem::size_of::<Self>() / std::mem::size_of::<f32>();
 
     /// The component's fields as one flat slice of `f32`, in declaration order.
     fn values(&self) -> &[f32] {
@@ -192,25 +196,126 @@ pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync +
     }
 }
 
-/// Implements [`Param`] for each `component => "name"` pair.
-macro_rules! params {
-    ($($component:ty => $name:literal),* $(,)?) => {
-        $(impl Param for $component {
-            const NAME: &'static str = $name;
-        })*
+/// The one declaration of a Gaussian's optimised parameter groups, in storage order.
+///
+/// Each group names its component, its [`Param::NAME`] and its section of the GPU-resident
+/// layout (groups that share a section are stored one after the other in it: the higher SH
+/// bands follow the DC term). `required` groups are spawned with every Gaussian; `optional`
+/// ones only when the model uses them (the higher SH bands at SH degree above 0), and systems
+/// read them as `Option<&P>`.
+///
+/// `param_groups!(then extra tokens)` expands to `then! { extra tokens required: [...]
+/// optional: [...] }`, and [`each_param!`] to `then! { Type, Type, ..., }` (every group, in
+/// order), so that each place that must handle every group (the [`Param`] impls, the spawn
+/// bundle and queries, the Adam and guard systems, the GPU layout) is generated from this
+/// list rather than written out again.
+macro_rules! param_groups {
+    ($then:ident $($extra:tt)*) => {
+        $then! {
+            $($extra)*
+            required: [
+                $crate::components::Position => "position", section 0;
+                $crate::components::Fourier => "fourier", section 1;
+                $crate::components::Temporal => "temporal", section 2;
+                $crate::components::Opacity => "opacity", section 3;
+                $crate::components::Rotation => "rotation", section 4;
+                $crate::components::Scale => "scale", section 5;
+                $crate::components::Color => "color", section 6;
+            ]
+            optional: [
+                $crate::components::ColorRest => "color_rest", section 6;
+            ]
+        }
     };
 }
+pub(crate) use param_groups;
 
-params!(
-    Position => "position",
-    Fourier => "fourier",
-    Temporal => "temporal",
-    Opacity => "opacity",
-    Rotation => "rotation",
-    Scale => "scale",
-    Color => "color",
-    ColorRest => "color_rest",
-);
+/// `each_param!(then)` expands to `then! { Position, Fourier, ..., ColorRest, }`: every
+/// parameter group of [`param_groups!`] as a type, in declaration order. Import it by name
+/// (`use crate::components::each_param;`): it calls itself back through [`param_groups!`].
+macro_rules! each_param {
+    ($then:ident) => {
+        $crate::components::param_groups!(each_param @types $then)
+    };
+    (
+        @types $then:ident
+        required: [$($required:ty => $rname:literal, section $rsection:literal;)*]
+        optional: [$($optional:ty => $oname:literal, section $osection:literal;)*]
+    ) => {
+        $then! { $($required,)* $($optional,)* }
+    };
+}
+pub(crate) use each_param;
+
+/// Where a parameter group lives: [`PARAM_GROUPS`] holds one per group, in declaration order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GroupLayout {
+    /// [`Param::NAME`].
+    pub name: &'static str,
+    /// `f32` values per Gaussian ([`Param::FLOATS`]).
+    pub floats: usize,
+    /// Section of the GPU-resident layout that holds it.
+    pub section: usize,
+    /// Spawned only when the model uses it (read as `Option<&P>`).
+    pub optional: bool,
+}
+
+/// Generates, from [`param_groups!`], the [`Param`] impls, [`PARAM_GROUPS`] and the tuple
+/// types that hold one Gaussian's groups.
+macro_rules! declare_params {
+    (
+        required: [$($required:ty => $rname:literal, section $rsection:literal;)*]
+        optional: [$($optional:ty => $oname:literal, section $osection:literal;)*]
+    ) => {
+        /// Every parameter group, in the order of [`param_groups!`].
+        pub const PARAM_GROUPS: &[GroupLayout] = &[
+            $(GroupLayout {
+                name: $rname,
+                floats: <$required as Param>::FLOATS,
+                section: $rsection,
+                optional: false,
+            },)*
+            $(GroupLayout {
+                name: $oname,
+                floats: <$optional as Param>::FLOATS,
+                section: $osection,
+                optional: true,
+            },)*
+        ];
+
+        declare_params!(@impl 0usize; $($required => $rname,)* $($optional => $oname,)*);
+
+        /// The parameters of the required groups, one tuple per Gaussian.
+        pub type RequiredParams = ($($required,)*);
+
+        /// Adam moments of every required parameter group.
+        pub type AdamMoments = ($(Adam<$required>,)*);
+
+        /// Gradients and Adam moments of every required parameter group.
+        pub type OptimizerState = (($(Grad<$required>,)*), AdamMoments);
+
+        /// The parameter components of one Gaussian, as a read-only query.
+        pub type ParamRefs<'a> = ($(&'a $required,)* $(Option<&'a $optional>,)*);
+
+        /// Read-only query of every Adam component of a Gaussian.
+        pub type AdamRefs<'a> = ($(&'a Adam<$required>,)* $(Option<&'a Adam<$optional>>,)*);
+
+        /// Zeroed gradients and Adam moments for every required group (for new Gaussians).
+        pub fn fresh_optimizer_state() -> OptimizerState {
+            Default::default()
+        }
+    };
+    (@impl $index:expr; $component:ty => $name:literal, $($rest:tt)*) => {
+        impl Param for $component {
+            const NAME: &'static str = $name;
+            const INDEX: usize = $index;
+        }
+        declare_params!(@impl $index + 1usize; $($rest)*);
+    };
+    (@impl $index:expr;) => {};
+}
+
+param_groups!(declare_params);
 
 /// This iteration's gradient of the loss with respect to parameter component `P`.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
@@ -247,18 +352,6 @@ pub struct GaussianParams {
     /// SH colour, bands 1–3 (spawned only when the model's SH degree is above 0).
     pub color_rest: ColorRest,
 }
-
-/// The parameter components of one Gaussian, as a read-only query.
-pub type ParamRefs<'a> = (
-    &'a Position,
-    &'a Fourier,
-    &'a Temporal,
-    &'a Opacity,
-    &'a Rotation,
-    &'a Scale,
-    &'a Color,
-    Option<&'a ColorRest>,
-);
 
 impl GaussianParams {
     /// Copies the components of a [`ParamRefs`] query item.
@@ -341,56 +434,7 @@ pub fn spawn_gaussians(
 
 /// Every component of one Gaussian but the higher SH bands ([`ColorRestBundle`]).
 pub type GaussianBundle = (
-    (Position, Fourier, Temporal, Opacity, Rotation, Scale, Color),
+    RequiredParams,
     OptimizerState,
     (GradAccum, WarpedTime, Deformed, SplatSlot),
 );
-
-/// Adam moments of every parameter group.
-pub type AdamMoments = (
-    Adam<Position>,
-    Adam<Fourier>,
-    Adam<Temporal>,
-    Adam<Opacity>,
-    Adam<Rotation>,
-    Adam<Scale>,
-    Adam<Color>,
-);
-
-/// Gradients and Adam moments of every parameter group.
-pub type OptimizerState = (
-    (
-        Grad<Position>,
-        Grad<Fourier>,
-        Grad<Temporal>,
-        Grad<Opacity>,
-        Grad<Rotation>,
-        Grad<Scale>,
-        Grad<Color>,
-    ),
-    AdamMoments,
-);
-
-/// Zeroed gradients and Adam moments for every parameter group (for new Gaussians).
-pub fn fresh_optimizer_state() -> OptimizerState {
-    (
-        (
-            Grad::<Position>::default(),
-            Grad::<Fourier>::default(),
-            Grad::<Temporal>::default(),
-            Grad::<Opacity>::default(),
-            Grad::<Rotation>::default(),
-            Grad::<Scale>::default(),
-            Grad::<Color>::default(),
-        ),
-        (
-            Adam::<Position>::default(),
-            Adam::<Fourier>::default(),
-            Adam::<Temporal>::default(),
-            Adam::<Opacity>::default(),
-            Adam::<Rotation>::default(),
-            Adam::<Scale>::default(),
-            Adam::<Color>::default(),
-        ),
-    )
-}

@@ -6,6 +6,7 @@ use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::{
     Adam, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal,
+    each_param,
 };
 use crate::model::exposure::Exposure;
 use crate::model::sh::{SH_COEFFS, coeff_count};
@@ -213,17 +214,12 @@ pub fn adam_exposure(settings: Res<Settings>, exposures: Option<ResMut<CameraExp
     }
 }
 
-/// The Adam systems of every parameter group.
+/// The Adam systems of every parameter group ([`crate::components::param_groups!`]).
 pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
-    (
-        adam_step::<Position>,
-        adam_step::<Fourier>,
-        adam_step::<Temporal>,
-        adam_step::<Opacity>,
-        adam_step::<Rotation>,
-        adam_step::<Scale>,
-        adam_step::<Color>,
-        adam_step::<ColorRest>,
-    )
-        .into_configs()
+    macro_rules! adam_steps {
+        ($($group:ty,)*) => {
+            ($(adam_step::<$group>,)*).into_configs()
+        };
+    }
+    each_param!(adam_steps)
 }

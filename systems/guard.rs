@@ -5,56 +5,59 @@
 
 use bevy_ecs::prelude::*;
 
-use crate::components::*;
-use crate::resources::{NumericFault, TrainState};
+use bevy_ecs::schedule::ScheduleConfigs;
+use bevy_ecs::system::ScheduleSystem;
 
-/// Index of the first Gaussian whose gradient of group `P` is not finite.
-fn first_nonfinite<P: Param>(grads: &Query<&Grad<P>>) -> Option<usize> {
-    grads
-        .iter()
-        .position(|g| !g.0.values().iter().all(|v| v.is_finite()))
+use crate::components::{Grad, Param, each_param};
+use crate::resources::{Fault, NumericFault, TrainState};
+
+/// Records a [`NumericFault`] when the loss is NaN or infinite.
+pub fn check_loss(state: Res<TrainState>, mut fault: ResMut<NumericFault>) {
+    if fault.0.is_none() && !state.loss.total.is_finite() {
+        fault.0 = Some(Fault {
+            iteration: state.iteration,
+            group: "loss",
+            gaussian: None,
+        });
+    }
 }
 
-/// Records a [`NumericFault`] when the loss or any gradient is NaN or infinite.
-#[allow(clippy::too_many_arguments)]
-pub fn check_gradients(
+/// Records a [`NumericFault`] naming the first Gaussian whose gradient of group `P` is NaN or
+/// infinite, unless a fault is already recorded.
+pub fn check_gradient<P: Param>(
     state: Res<TrainState>,
     mut fault: ResMut<NumericFault>,
-    position: Query<&Grad<Position>>,
-    fourier: Query<&Grad<Fourier>>,
-    temporal: Query<&Grad<Temporal>>,
-    opacity: Query<&Grad<Opacity>>,
-    rotation: Query<&Grad<Rotation>>,
-    scale: Query<&Grad<Scale>>,
-    color: Query<&Grad<Color>>,
-    color_rest: Query<&Grad<ColorRest>>,
+    grads: Query<&Grad<P>>,
 ) {
     if fault.0.is_some() {
         return;
     }
-    let found = if !state.loss.total.is_finite() {
-        Some(("loss", None))
-    } else {
-        [
-            (Position::NAME, first_nonfinite(&position)),
-            (Fourier::NAME, first_nonfinite(&fourier)),
-            (Temporal::NAME, first_nonfinite(&temporal)),
-            (Opacity::NAME, first_nonfinite(&opacity)),
-            (Rotation::NAME, first_nonfinite(&rotation)),
-            (Scale::NAME, first_nonfinite(&scale)),
-            (Color::NAME, first_nonfinite(&color)),
-            (ColorRest::NAME, first_nonfinite(&color_rest)),
-        ]
-        .into_iter()
-        .find_map(|(group, index)| index.map(|i| (group, Some(i))))
-    };
-    if let Some((group, gaussian)) = found {
-        fault.0 = Some(crate::resources::Fault {
+    let first = grads
+        .iter()
+        .position(|g| !g.0.values().iter().all(|v| v.is_finite()));
+    if let Some(gaussian) = first {
+        fault.0 = Some(Fault {
             iteration: state.iteration,
-            group,
-            gaussian,
+            group: P::NAME,
+            gaussian: Some(gaussian),
         });
     }
+}
+
+/// The systems of the guard, for ordering your own systems before or after it.
+#[derive(SystemSet, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct GradientGuard;
+
+/// The guard, in [`GradientGuard`]: [`check_loss`], then [`check_gradient`] of every parameter
+/// group in declaration order ([`crate::components::param_groups!`]), so the fault names the
+/// first bad group.
+pub fn check_gradients() -> ScheduleConfigs<ScheduleSystem> {
+    macro_rules! checks {
+        ($($group:ty,)*) => {
+            (check_loss, $(check_gradient::<$group>,)*).chain().in_set(GradientGuard)
+        };
+    }
+    each_param!(checks)
 }
 
 /// Run condition: no numeric fault has been recorded.

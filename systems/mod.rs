@@ -122,7 +122,7 @@ pub fn add_backward_systems(schedule: &mut Schedule) {
         (
             backward::backward_splats,
             backward::backward_parameters,
-            guard::check_gradients,
+            guard::check_gradients(),
         )
             .chain()
             .run_if(resident::on_cpu)

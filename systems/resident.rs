@@ -10,7 +10,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
 
 use crate::components::{
-    Adam, Color, ColorRest, Deformed, Fourier, Grad, GradAccum, Opacity, Param, ParamRefs,
+    Adam, AdamRefs, Color, ColorRest, Deformed, Fourier, Grad, GradAccum, Opacity, Param, ParamRefs,
     Position, Rotation, Scale, ShCoefficients, SplatSlot, Temporal, WarpedTime, sh_coefficients,
     split_sh,
 };
@@ -20,18 +20,6 @@ use crate::resources::{
 };
 use crate::systems::adam::{ParamGroup, position_lr};
 use crate::systems::backward::ParamGrads;
-
-/// The Adam moments of one Gaussian, as a read-only query.
-pub type AdamRefs<'a> = (
-    &'a Adam<Position>,
-    &'a Adam<Fourier>,
-    &'a Adam<Temporal>,
-    &'a Adam<Opacity>,
-    &'a Adam<Rotation>,
-    &'a Adam<Scale>,
-    &'a Adam<Color>,
-    Option<&'a Adam<ColorRest>>,
-);
 
 /// The parameters and Adam moments of one Gaussian, writable.
 pub type ResidentMuts<'a> = (

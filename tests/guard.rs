@@ -7,7 +7,7 @@ use bevy_ecs::prelude::*;
 use tadgs::components::*;
 use tadgs::resources::{Fault, NumericFault, TrainState};
 use tadgs::systems::backward::backward_parameters;
-use tadgs::systems::guard::check_gradients;
+use tadgs::systems::guard::{GradientGuard, check_gradients};
 use tadgs::systems::training_schedule;
 use tadgs::train::{insert_resources, spawn_initial_gaussians};
 
@@ -42,7 +42,7 @@ fn nan_stops_the_optimisation_and_keeps_the_last_good_parameters() {
     schedule.add_systems(
         poison_at_iteration_6
             .after(backward_parameters)
-            .before(check_gradients),
+            .before(GradientGuard),
     );
     for _ in 0..5 {
         schedule.run(&mut world);
@@ -82,7 +82,7 @@ fn the_fault_names_the_group_and_the_gaussian() {
         world.spawn(GaussianParams::default().bundle());
     }
     let mut schedule = Schedule::default();
-    schedule.add_systems(check_gradients);
+    schedule.add_systems(check_gradients());
     schedule.run(&mut world);
     assert_eq!(world.resource::<NumericFault>().0, None);
 

@@ -43,42 +43,26 @@ const WORKGROUP: u32 = 64;
 /// Most workgroups per dispatch dimension.
 const MAX_GROUPS: u32 = 65_535;
 
-/// f32 values per Gaussian in each parameter component, in section order.
-pub(super) const WIDTHS: [usize; 7] = [
-    size_of::<Position>() / 4,
-    size_of::<Fourier>() / 4,
-    size_of::<Temporal>() / 4,
-    size_of::<Opacity>() / 4,
-    size_of::<Rotation>() / 4,
-    size_of::<Scale>() / 4,
-    size_of::<ShCoefficients>() / 4,
-];
-/// f32 values per Gaussian over all components (`PREFIX_COLOR + WIDTH_COLOR` in the shaders).
-pub(super) const PARAM_FLOATS: usize = 97;
-const _: () = {
-    let mut sum = 0;
-    let mut i = 0;
-    while i < WIDTHS.len() {
-        sum += WIDTHS[i];
-        i += 1;
-    }
-    assert!(sum == PARAM_FLOATS);
-};
+use super::layout::{PARAM_FLOATS, WIDTHS};
+
 /// f32 values per splat record (`SPLAT_STRIDE`).
 const SPLAT_FLOATS: usize = 16;
 /// f32 values per splat gradient (`SPLAT_GRAD_STRIDE`, the rasterizer's layout).
 const SPLAT_GRAD_FLOATS: usize = 9;
 
 const DEFORM_WGSL: &str = concat!(
+    include_str!("../../shaders/param_layout.wgsl"),
     include_str!("../../shaders/gaussian_common.wgsl"),
     include_str!("../../shaders/gaussian_params.wgsl"),
     include_str!("../../shaders/deform.wgsl")
 );
 const PROJECT_WGSL: &str = concat!(
+    include_str!("../../shaders/param_layout.wgsl"),
     include_str!("../../shaders/gaussian_common.wgsl"),
     include_str!("../../shaders/project.wgsl")
 );
 const BACKWARD_WGSL: &str = concat!(
+    include_str!("../../shaders/param_layout.wgsl"),
     include_str!("../../shaders/gaussian_common.wgsl"),
     include_str!("../../shaders/gaussian_params.wgsl"),
     include_str!("../../shaders/param_backward.wgsl")

@@ -25,6 +25,7 @@
 mod adam;
 mod deform;
 mod kernel;
+pub mod layout;
 mod pipeline;
 mod raster;
 mod scan;
@@ -34,7 +35,8 @@ mod stats;
 pub use adam::{GpuAdam, GpuParamGroup};
 pub use deform::{DeformSettings, GpuDeformer, ParamGradients, ParamSlices};
 pub use kernel::set_max_dispatch_width;
-pub use pipeline::{GpuTraining, GradientFault, ResidentState, SECTION_NAMES};
+pub use layout::SECTION_NAMES;
+pub use pipeline::{GpuTraining, GradientFault, ResidentState};
 pub use raster::GpuRasterizer;
 pub use scan::GpuScan;
 pub use sort::{BinBuffers, BinReadback, GpuBinner, GpuRadixSort, SplatBox};

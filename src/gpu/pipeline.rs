@@ -13,15 +13,13 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::adam::AdamUniforms;
-use super::deform::{PARAM_FLOATS, WIDTHS};
+use super::layout::{PARAM_FLOATS, SECTION_NAMES, WIDTHS};
 use super::kernel::{self, bind, dispatch, groups_for, storage};
 use super::{
     DeformSettings, GpuAdam, GpuBinner, GpuContext, GpuDeformer, GpuError, GpuRasterizer, GpuStats,
     GrowBuffer, SplatBox, StatsConfig,
 };
-use crate::components::{
-    Color, Fourier, GradAccum, Opacity, Param, Position, Rotation, Scale, Temporal, WarpedTime,
-};
+use crate::components::{GradAccum, WarpedTime};
 use crate::data::Camera;
 use crate::raster::RenderOutput;
 
@@ -33,17 +31,6 @@ const SPLAT_FLOATS: u64 = 16;
 const RASTER_SPLAT_FLOATS: u64 = 12;
 /// The gradient check's "nothing found".
 const NO_FAULT: u32 = u32::MAX;
-
-/// The parameter groups in section order, by [`Param::NAME`].
-pub const SECTION_NAMES: [&str; 7] = [
-    Position::NAME,
-    Fourier::NAME,
-    Temporal::NAME,
-    Opacity::NAME,
-    Rotation::NAME,
-    Scale::NAME,
-    Color::NAME,
-];
 
 /// `PipelineParams` in `shaders/pipeline.wgsl`.
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
@@ -57,7 +44,7 @@ struct PipelineParams {
 /// The first non-finite parameter gradient found by [`GpuTraining::backward`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct GradientFault {
-    /// The parameter group ([`Param::NAME`]).
+    /// The parameter group ([`crate::components::Param::NAME`]).
     pub group: &'static str,
     /// The Gaussian's slot.
     pub gaussian: usize,

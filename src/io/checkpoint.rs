@@ -27,7 +27,7 @@ use super::model::{
     read_param_tensors, write_tensors,
 };
 use crate::components::{
-    Adam, AdamMoments, Color, ColorRest, Fourier, GaussianParams, GradAccum, Opacity, Param,
+    Adam, AdamMoments, AdamRefs, Color, ColorRest, Fourier, GaussianParams, GradAccum, Opacity, Param,
     ParamRefs, Position, Rotation, Scale, ShCoefficients, Temporal, sh_coefficients,
     spawn_gaussians, split_sh,
 };
@@ -382,18 +382,6 @@ struct LogFile {
     iteration: u32,
     log: TrainingLog,
 }
-
-/// Read-only query of every Adam component of a Gaussian.
-type AdamRefs<'a> = (
-    &'a Adam<Position>,
-    &'a Adam<Fourier>,
-    &'a Adam<Temporal>,
-    &'a Adam<Opacity>,
-    &'a Adam<Rotation>,
-    &'a Adam<Scale>,
-    &'a Adam<Color>,
-    Option<&'a Adam<ColorRest>>,
-);
 
 /// The first and second moments of group `P` as tensors `adam.m.<group>`, `adam.v.<group>`;
 /// `moments` gives a Gaussian's `[m, v]` as values of type `T` (the full SH set for colour).
