@@ -358,6 +358,8 @@ fn time_gpu_stages(world: &mut World, samples: &mut Samples) -> Result<(), GpuEr
     samples.stage(world, "sample view", sample);
     samples.stage(world, "time warp", time_warp_stage);
     samples.gpu_stage(world, "GPU deform … blend, image back", |w| {
+        w.run_system_cached::<bevy_ecs::error::Result, _, _>(resident::resident_upload)
+            .unwrap()?;
         w.run_system_cached(resident::resident_forward).unwrap()
     })?;
     samples.stage(world, "loss (L1 + D-SSIM)", loss_stage);

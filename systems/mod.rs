@@ -100,7 +100,8 @@ pub fn add_render_systems(schedule: &mut Schedule) {
     schedule.add_systems(deform::deform.run_if(resident::on_cpu).in_set(Deform));
     schedule.add_systems(splat::splat.run_if(resident::on_cpu).in_set(Splat));
     schedule.add_systems(
-        resident::resident_forward
+        (resident::resident_upload, resident::resident_forward)
+            .chain()
             .run_if(resident::on_gpu)
             .in_set(Splat),
     );

@@ -10,40 +10,14 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
 
 use crate::components::{
-    Adam, AdamRefs, Color, ColorRest, Deformed, Fourier, Grad, GradAccum, Opacity, Param, ParamRefs,
-    Position, Rotation, Scale, ShCoefficients, SplatSlot, Temporal, WarpedTime, sh_coefficients,
-    split_sh,
+    Adam, Deformed, Grad, GradAccum, PARAM_GROUPS, Param, SplatSlot, WarpedTime, each_param,
 };
-use crate::gpu::{DeformSettings, GpuTraining, ParamGradients, ResidentState, StatsConfig};
+use crate::gpu::layout::{PARAM_FLOATS, SECTIONS, WIDTHS, group_range, offset_in_section};
+use crate::gpu::{DeformSettings, GpuTraining, ResidentState, StatsConfig};
 use crate::resources::{
     Fault, LossImage, NumericFault, Settings, SplatBuffers, TrainState, ViewSample,
 };
 use crate::systems::adam::{ParamGroup, position_lr};
-use crate::systems::backward::ParamGrads;
-
-/// The parameters and Adam moments of one Gaussian, writable.
-pub type ResidentMuts<'a> = (
-    (
-        &'a mut Position,
-        &'a mut Fourier,
-        &'a mut Temporal,
-        &'a mut Opacity,
-        &'a mut Rotation,
-        &'a mut Scale,
-        &'a mut Color,
-        Option<&'a mut ColorRest>,
-    ),
-    (
-        &'a mut Adam<Position>,
-        &'a mut Adam<Fourier>,
-        &'a mut Adam<Temporal>,
-        &'a mut Adam<Opacity>,
-        &'a mut Adam<Rotation>,
-        &'a mut Adam<Scale>,
-        &'a mut Adam<Color>,
-        Option<&'a mut Adam<ColorRest>>,
-    ),
-);
 
 /// Run condition: the CPU stages run (no [`GpuTraining`] resource).
 pub fn on_cpu(gpu: Option<Res<GpuTraining>>) -> bool {
@@ -55,78 +29,71 @@ pub fn on_gpu(gpu: Option<Res<GpuTraining>>) -> bool {
     gpu.is_some()
 }
 
-/// Host scratch of [`resident_forward`].
-#[derive(Default)]
-pub struct ForwardScratch {
-    sections: [[Vec<f32>; 7]; 3],
-    state: ResidentState,
-    warped: Vec<WarpedTime>,
+/// When the GPU copy is stale (or the population changed), assigns each Gaussian its
+/// [`SplatSlot`] and uploads every parameter group, its Adam moments and the densification
+/// statistics in the resident layout. Groups a Gaussian lacks (the higher SH bands of a
+/// degree-0 model) are uploaded as zeros.
+pub fn resident_upload(
+    world: &mut World,
+    slots: &mut QueryState<&mut SplatSlot>,
+    mut state: Local<ResidentState>,
+) -> Result {
+    let state = &mut *state;
+    let count = slots.iter(world).len();
+    let gpu = world.resource::<GpuTraining>();
+    if !gpu.is_dirty() && count == gpu.len() {
+        return Ok(());
+    }
+    for (slot, mut splat_slot) in slots.iter_mut(world).enumerate() {
+        splat_slot.0 = slot as u32;
+    }
+    state.clear();
+    for values in [&mut state.params, &mut state.m, &mut state.v] {
+        values.resize(count * PARAM_FLOATS, 0.0);
+    }
+    state.accum.resize(count, GradAccum::default());
+    macro_rules! gather_every_group {
+        ($($group:ty,)*) => {
+            $(gather::<$group>(world, state, count);)*
+        };
+    }
+    each_param!(gather_every_group);
+    for (accum, slot) in world.query::<(&GradAccum, &SplatSlot)>().iter(world) {
+        state.accum[slot.0 as usize] = *accum;
+    }
+    world.resource_mut::<GpuTraining>().upload(&state)?;
+    Ok(())
 }
 
-/// Uploads the components when the GPU copy is stale (assigning each Gaussian its
-/// [`SplatSlot`]), then deforms, projects, bins and blends the sampled view on the GPU into
-/// [`SplatBuffers::render`].
-#[allow(clippy::too_many_arguments)]
+/// Copies group `P`'s values and moments of every Gaussian into their slots of `state`.
+fn gather<P: Param>(world: &mut World, state: &mut ResidentState, count: usize) {
+    for (value, adam, slot) in world.query::<(&P, &Adam<P>, &SplatSlot)>().iter(world) {
+        let range = group_range::<P>(count, slot.0 as usize);
+        state.params[range.clone()].copy_from_slice(value.values());
+        state.m[range.clone()].copy_from_slice(adam.m.values());
+        state.v[range].copy_from_slice(adam.v.values());
+    }
+}
+
+/// Deforms, projects, bins and blends the sampled view on the GPU into
+/// [`SplatBuffers::render`] (after [`resident_upload`]).
 pub fn resident_forward(
     settings: Res<Settings>,
     state: Res<TrainState>,
     sample: Res<ViewSample>,
     mut buffers: ResMut<SplatBuffers>,
     mut gpu: ResMut<GpuTraining>,
-    mut gaussians: Query<(ParamRefs, AdamRefs, &GradAccum, &WarpedTime, &mut SplatSlot)>,
-    mut scratch: Local<ForwardScratch>,
+    gaussians: Query<(&WarpedTime, &SplatSlot)>,
+    mut warped: Local<Vec<WarpedTime>>,
 ) -> Result {
-    let scratch = &mut *scratch;
-    let count = gaussians.iter().len();
-    if gpu.is_dirty() || count != gpu.len() {
-        for group in scratch.sections.iter_mut().flatten() {
-            group.clear();
-        }
-        scratch.state.clear();
-        for (slot, (params, adam, accum, _, mut splat_slot)) in gaussians.iter_mut().enumerate() {
-            splat_slot.0 = slot as u32;
-            let (p0, p1, p2, p3, p4, p5, p6, p7) = params;
-            let (a0, a1, a2, a3, a4, a5, a6, a7) = adam;
-            let (no_rest, no_moments) = (ColorRest::default(), Adam::<ColorRest>::default());
-            let (p7, a7) = (p7.unwrap_or(&no_rest), a7.unwrap_or(&no_moments));
-            // The GPU holds every SH band in one section: the higher bands (zero for a
-            // Gaussian without them) follow the DC term.
-            let values = [
-                [p0.values(), a0.m.values(), a0.v.values()],
-                [p1.values(), a1.m.values(), a1.v.values()],
-                [p2.values(), a2.m.values(), a2.v.values()],
-                [p3.values(), a3.m.values(), a3.v.values()],
-                [p4.values(), a4.m.values(), a4.v.values()],
-                [p5.values(), a5.m.values(), a5.v.values()],
-                [p6.values(), a6.m.values(), a6.v.values()],
-                [p7.values(), a7.m.values(), a7.v.values()],
-            ];
-            for (k, parts) in values.iter().enumerate() {
-                for (kind, part) in parts.iter().enumerate() {
-                    scratch.sections[kind][k.min(6)].extend_from_slice(part);
-                }
-            }
-            scratch.state.accum.push(*accum);
-        }
-        let state = &mut scratch.state;
-        for (kind, out) in [&mut state.params, &mut state.m, &mut state.v]
-            .into_iter()
-            .enumerate()
-        {
-            for section in &scratch.sections[kind] {
-                out.extend_from_slice(section);
-            }
-        }
-        gpu.upload(state)?;
-    }
-    scratch.warped.clear();
-    scratch.warped.resize(count, WarpedTime::default());
-    for (_, _, _, warped, slot) in gaussians.iter() {
-        scratch.warped[slot.0 as usize] = *warped;
+    warped.clear();
+    warped.resize(gaussians.iter().len(), WarpedTime::default());
+    for (time, slot) in gaussians.iter() {
+        warped[slot.0 as usize] = *time;
     }
     let deform = DeformSettings::new(&settings, &state);
     gpu.forward(
-        &scratch.warped,
+        &warped,
         &sample.camera,
         &deform,
         settings.train.background,
@@ -167,6 +134,7 @@ pub fn resident_adam(
     settings: Res<Settings>,
     state: Res<TrainState>,
     mut gpu: ResMut<GpuTraining>,
+    mut rates: Local<[Vec<f32>; SECTIONS]>,
 ) {
     let lr = &settings.train.lr;
     let plr = position_lr(
@@ -175,28 +143,22 @@ pub fn resident_adam(
         settings.train.iterations,
         settings.extent,
     );
-    let r0 = Position::learning_rates(lr, plr);
-    let r1 = Fourier::learning_rates(lr, plr);
-    let r2 = Temporal::learning_rates(lr, plr);
-    let r3 = Opacity::learning_rates(lr, plr);
-    let r4 = Rotation::learning_rates(lr, plr);
-    let r5 = Scale::learning_rates(lr, plr);
-    let r6 = sh_coefficients(
-        &Color::learning_rates(lr, plr),
-        Some(&ColorRest::learning_rates(lr, plr)),
-    );
-    gpu.adam(
-        [
-            r0.values(),
-            r1.values(),
-            r2.values(),
-            r3.values(),
-            r4.values(),
-            r5.values(),
-            r6.as_flattened(),
-        ],
-        state.iteration,
-    );
+    for (section, width) in rates.iter_mut().zip(WIDTHS) {
+        section.resize(width, 0.0);
+    }
+    macro_rules! every_group_rates {
+        ($($group:ty,)*) => {
+            $(put_rates::<$group>(&mut rates, <$group>::learning_rates(lr, plr).values());)*
+        };
+    }
+    each_param!(every_group_rates);
+    gpu.adam(std::array::from_fn(|k| &rates[k][..]), state.iteration);
+}
+
+/// Places group `P`'s per-value learning rates in its section's rates.
+fn put_rates<P: Param>(rates: &mut [Vec<f32>; SECTIONS], values: &[f32]) {
+    let offset = offset_in_section(P::INDEX);
+    rates[PARAM_GROUPS[P::INDEX].section][offset..offset + P::FLOATS].copy_from_slice(values);
 }
 
 /// Adds this iteration's view to the resident densification statistics.
@@ -208,92 +170,68 @@ pub fn resident_stats(settings: Res<Settings>, mut gpu: ResMut<GpuTraining>) {
 #[derive(Default)]
 pub struct SyncScratch {
     state: ResidentState,
-    grads: ParamGradients,
+    grads: Vec<f32>,
     deformed: Vec<Deformed>,
 }
 
 /// Reads the parameters, Adam moments and statistics back into the components (by
 /// [`SplatSlot`]), and the last iteration's gradients and deformed Gaussians into
-/// [`Grad`](crate::components::Grad) and [`Deformed`], which the resident iteration itself
-/// never writes: after a sync, systems and tools that read them see what the CPU schedule
-/// would have left there. Then marks the GPU copy stale.
-pub fn resident_sync(
-    mut gpu: ResMut<GpuTraining>,
-    mut gaussians: Query<(
-        ResidentMuts,
-        ParamGrads,
-        &mut Deformed,
-        &mut GradAccum,
-        &SplatSlot,
-    )>,
-    mut scratch: Local<SyncScratch>,
-) -> Result {
-    if gpu.is_dirty() {
-        // Nothing ran on the GPU since the components were last written.
-        return Ok(());
-    }
+/// [`Grad`] and [`Deformed`], which the resident iteration itself never writes: after a sync,
+/// systems and tools that read them see what the CPU schedule would have left there. Then
+/// marks the GPU copy stale.
+pub fn resident_sync(world: &mut World, mut scratch: Local<SyncScratch>) -> Result {
     let SyncScratch {
         state,
         grads,
         deformed,
     } = &mut *scratch;
-    gpu.read(state)?;
-    gpu.read_gradients(grads)?;
-    gpu.read_deformed(deformed)?;
-    let n = state.len();
-    fn put<P: Param>(
-        state: &ResidentState,
-        n: usize,
-        k: usize,
-        slot: usize,
-        value: &mut P,
-        adam: &mut Adam<P>,
-    ) {
-        *value = ResidentState::get(&state.params, n, k, slot);
-        adam.m = ResidentState::get(&state.m, n, k, slot);
-        adam.v = ResidentState::get(&state.v, n, k, slot);
+    {
+        let mut gpu = world.resource_mut::<GpuTraining>();
+        if gpu.is_dirty() {
+            // Nothing ran on the GPU since the components were last written.
+            return Ok(());
+        }
+        gpu.read(state)?;
+        gpu.read_gradient_values(grads)?;
+        gpu.read_deformed(deformed)?;
     }
-    for (
-        ((p0, p1, p2, p3, p4, p5, p6, p7), (a0, a1, a2, a3, a4, a5, a6, a7)),
-        (g0, g1, g2, g3, g4, g5, g6, g7),
-        mut deformed_out,
-        mut accum,
-        slot,
-    ) in gaussians.iter_mut()
+    macro_rules! scatter_every_group {
+        ($($group:ty,)*) => {
+            $(scatter::<$group>(world, state, grads);)*
+        };
+    }
+    each_param!(scatter_every_group);
+    for (mut deformed_out, mut accum, slot) in world
+        .query::<(&mut Deformed, &mut GradAccum, &SplatSlot)>()
+        .iter_mut(world)
     {
         let s = slot.0 as usize;
-        *g0.into_inner() = grads.position[s];
-        *g1.into_inner() = grads.fourier[s];
-        *g2.into_inner() = grads.temporal[s];
-        *g3.into_inner() = grads.opacity[s];
-        *g4.into_inner() = grads.rotation[s];
-        *g5.into_inner() = grads.scale[s];
-        let (d_dc, d_rest) = split_sh(&grads.color[s]);
-        *g6.into_inner() = Grad(d_dc);
         *deformed_out = deformed[s];
-        put(state, n, 0, s, p0.into_inner(), a0.into_inner());
-        put(state, n, 1, s, p1.into_inner(), a1.into_inner());
-        put(state, n, 2, s, p2.into_inner(), a2.into_inner());
-        put(state, n, 3, s, p3.into_inner(), a3.into_inner());
-        put(state, n, 4, s, p4.into_inner(), a4.into_inner());
-        put(state, n, 5, s, p5.into_inner(), a5.into_inner());
-        let sh = |values| split_sh(&ResidentState::get::<ShCoefficients>(values, n, 6, s));
-        let ((dc, rest), (m_dc, m_rest), (v_dc, v_rest)) =
-            (sh(&state.params), sh(&state.m), sh(&state.v));
-        *p6.into_inner() = dc;
-        *a6.into_inner() = Adam { m: m_dc, v: v_dc };
-        if let (Some(mut p7), Some(mut a7), Some(mut g7)) = (p7, a7, g7) {
-            *p7 = rest;
-            *a7 = Adam {
-                m: m_rest,
-                v: v_rest,
-            };
-            g7.0 = d_rest;
-        }
         *accum = state.accum[s];
     }
-    gpu.mark_dirty();
+    world.resource_mut::<GpuTraining>().mark_dirty();
     Ok(())
+}
+
+/// Copies group `P`'s values, moments and gradient of every Gaussian that has the group out of
+/// its slot of `state` and `grads`.
+fn scatter<P: Param>(world: &mut World, state: &ResidentState, grads: &[f32]) {
+    let count = state.len();
+    for (mut value, mut adam, mut grad, slot) in world
+        .query::<(&mut P, &mut Adam<P>, &mut Grad<P>, &SplatSlot)>()
+        .iter_mut(world)
+    {
+        let range = group_range::<P>(count, slot.0 as usize);
+        let get = |values: &[f32]| -> P {
+            bytemuck::pod_read_unaligned(bytemuck::cast_slice(&values[range.clone()]))
+        };
+        *value = get(&state.params);
+        *adam = Adam {
+            m: get(&state.m),
+            v: get(&state.v),
+        };
+        *grad = Grad(get(grads));
+    }
 }
 
 /// Runs [`resident_sync`] on `world` when it trains on the GPU-resident pipeline (a no-op otherwise):

@@ -595,6 +595,13 @@ impl GpuDeformer {
         )
     }
 
+    /// Copies the parameter gradients of the last backward pass into `out`, in the resident
+    /// layout of the parameters ([`super::layout`]).
+    pub(super) fn read_grad_values(&mut self, out: &mut Vec<f32>) -> Result<(), GpuError> {
+        let bytes = (self.count * PARAM_FLOATS * 4) as u64;
+        read(&self.gpu, &mut self.staging, &self.grads.buffer, bytes, out)
+    }
+
     fn dispatch_backward(&mut self) {
         let n = self.count;
         let gpu = &self.gpu;

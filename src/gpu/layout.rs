@@ -122,7 +122,11 @@ pub fn wgsl_layout() -> String {
     }
     for (index, group) in PARAM_GROUPS.iter().enumerate() {
         let name = group.name.to_uppercase();
-        constant(&mut out, &format!("OFFSET_{name}"), offset_in_section(index));
+        constant(
+            &mut out,
+            &format!("OFFSET_{name}"),
+            offset_in_section(index),
+        );
     }
     out
 }
@@ -143,7 +147,10 @@ mod tests {
         assert_eq!(SECTION_NAMES[6], Color::NAME);
         assert_eq!(offset_in_section(ColorRest::INDEX), 3);
         // Gaussian 2 of 10: the colour section starts after 49 values per Gaussian.
-        assert_eq!(group_range::<ColorRest>(10, 2), 490 + 2 * 48 + 3..490 + 2 * 48 + 48);
+        assert_eq!(
+            group_range::<ColorRest>(10, 2),
+            490 + 2 * 48 + 3..490 + 2 * 48 + 48
+        );
         assert_eq!(group_range::<Scale>(10, 9), 430 + 9 * 6..430 + 10 * 6);
     }
 }

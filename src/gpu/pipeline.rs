@@ -13,13 +13,13 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::adam::AdamUniforms;
-use super::layout::{PARAM_FLOATS, SECTION_NAMES, WIDTHS};
 use super::kernel::{self, bind, dispatch, groups_for, storage};
+use super::layout::{PARAM_FLOATS, SECTION_NAMES, SECTIONS, WIDTHS, group_range};
 use super::{
     DeformSettings, GpuAdam, GpuBinner, GpuContext, GpuDeformer, GpuError, GpuRasterizer, GpuStats,
     GrowBuffer, SplatBox, StatsConfig,
 };
-use crate::components::{GradAccum, WarpedTime};
+use crate::components::{GradAccum, Temporal, WarpedTime};
 use crate::data::Camera;
 use crate::raster::RenderOutput;
 
@@ -82,23 +82,6 @@ impl ResidentState {
     /// Whether there are no Gaussians.
     pub fn is_empty(&self) -> bool {
         self.params.is_empty()
-    }
-
-    /// Appends one Gaussian's section-`k` values (and moments) to the host arrays being
-    /// gathered per section (see [`ResidentState::from_sections`]).
-    pub fn section_range(count: usize, k: usize) -> std::ops::Range<usize> {
-        let start: usize = WIDTHS[..k].iter().sum::<usize>() * count;
-        start..start + WIDTHS[k] * count
-    }
-
-    /// The values of section `k` (a component, or every SH band for section 6) of slot `slot`
-    /// of `values` (a `params`, `m` or `v` array of `count` Gaussians).
-    pub fn get<T: bytemuck::Pod>(values: &[f32], count: usize, k: usize, slot: usize) -> T {
-        let range = Self::section_range(count, k);
-        let width = WIDTHS[k];
-        debug_assert_eq!(width * 4, size_of::<T>());
-        let at = range.start + slot * width;
-        bytemuck::pod_read_unaligned(bytemuck::cast_slice(&values[at..at + width]))
     }
 }
 
@@ -366,7 +349,7 @@ impl GpuTraining {
     ///
     /// # Panics
     /// Unless `rates[k]` has one rate per field of section `k`.
-    pub fn adam(&mut self, rates: [&[f32]; 7], iteration: u32) {
+    pub fn adam(&mut self, rates: [&[f32]; SECTIONS], iteration: u32) {
         let n = self.count;
         let mut start = 0;
         for (k, (rates, width)) in rates.into_iter().zip(WIDTHS).enumerate() {
@@ -396,7 +379,7 @@ impl GpuTraining {
     /// Adds the last view to the densification statistics (with the current temporal
     /// parameters, as the CPU stage does after Adam).
     pub fn accumulate_stats(&mut self, config: &StatsConfig) {
-        let temporal = ResidentState::section_range(self.count, 2).start as u64 * 4;
+        let temporal = group_range::<Temporal>(self.count, 0).start as u64 * 4;
         self.stats.accumulate_resident(
             config,
             self.binner.buffers().splats,
@@ -410,6 +393,12 @@ impl GpuTraining {
     /// diagnostics; training never needs them on the CPU).
     pub fn read_gradients(&mut self, out: &mut super::ParamGradients) -> Result<(), GpuError> {
         self.deformer.read_grads(out)
+    }
+
+    /// Copies the parameter gradients of the last backward pass into `out`, in the resident
+    /// layout ([`super::layout::group_range`] finds a group's values).
+    pub fn read_gradient_values(&mut self, out: &mut Vec<f32>) -> Result<(), GpuError> {
+        self.deformer.read_grad_values(out)
     }
 
     /// Copies the deformed Gaussians of the last forward pass into `out` (one per slot).

@@ -27,8 +27,8 @@ use super::model::{
     read_param_tensors, write_tensors,
 };
 use crate::components::{
-    Adam, AdamMoments, AdamRefs, Color, ColorRest, Fourier, GaussianParams, GradAccum, Opacity, Param,
-    ParamRefs, Position, Rotation, Scale, ShCoefficients, Temporal, sh_coefficients,
+    Adam, AdamMoments, AdamRefs, Color, ColorRest, Fourier, GaussianParams, GradAccum, Opacity,
+    Param, ParamRefs, Position, Rotation, Scale, ShCoefficients, Temporal, sh_coefficients,
     spawn_gaussians, split_sh,
 };
 use crate::report::TrainingLog;
