@@ -1,5 +1,5 @@
 // Generated from the parameter declaration (`param_groups!` in src/components.rs) by
-// src/gpu/layout.rs; do not edit. Regenerate with
+// src/layout.rs; do not edit. Regenerate with
 //   TADGS_BLESS=1 cargo test --release --test gpu_layout
 
 const FOURIER_TERMS: u32 = 4u;

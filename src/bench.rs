@@ -142,7 +142,7 @@ pub fn benchmark_world_on(
         config.model.sh_degree,
         gaussians
             .iter()
-            .map(|g| (g.bundle(), g.color_rest_bundle()))
+            .map(|g| (g.bundle(), g.optional_bundle()))
             .collect::<Vec<_>>(),
     );
     Ok(world)

@@ -198,7 +198,8 @@ pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync +
 
 /// The one declaration of a Gaussian's optimised parameter groups, in storage order.
 ///
-/// Each group names its component, its [`Param::NAME`] and its section of the GPU-resident
+/// Each group names its field in [`GaussianParams`] (also its [`Param::NAME`]: the tensor
+/// name in model files and checkpoints), its component, and its section of the GPU-resident
 /// layout (groups that share a section are stored one after the other in it: the higher SH
 /// bands follow the DC term). `required` groups are spawned with every Gaussian; `optional`
 /// ones only when the model uses them (the higher SH bands at SH degree above 0), and systems
@@ -214,16 +215,24 @@ macro_rules! param_groups {
         $then! {
             $($extra)*
             required: [
-                $crate::components::Position => "position", section 0;
-                $crate::components::Fourier => "fourier", section 1;
-                $crate::components::Temporal => "temporal", section 2;
-                $crate::components::Opacity => "opacity", section 3;
-                $crate::components::Rotation => "rotation", section 4;
-                $crate::components::Scale => "scale", section 5;
-                $crate::components::Color => "color", section 6;
+                /// Canonical mean.
+                position: $crate::components::Position, section 0;
+                /// Fourier motion.
+                fourier: $crate::components::Fourier, section 1;
+                /// Temporal centre and scale.
+                temporal: $crate::components::Temporal, section 2;
+                /// Spatial opacity logit.
+                opacity: $crate::components::Opacity, section 3;
+                /// Rotation polynomial.
+                rotation: $crate::components::Rotation, section 4;
+                /// Log-scale polynomial.
+                scale: $crate::components::Scale, section 5;
+                /// SH colour, band 0.
+                color: $crate::components::Color, section 6;
             ]
             optional: [
-                $crate::components::ColorRest => "color_rest", section 6;
+                /// SH colour, bands 1–3 (spawned only when the model's SH degree is above 0).
+                color_rest: $crate::components::ColorRest, section 6;
             ]
         }
     };
@@ -239,8 +248,8 @@ macro_rules! each_param {
     };
     (
         @types $then:ident
-        required: [$($required:ty => $rname:literal, section $rsection:literal;)*]
-        optional: [$($optional:ty => $oname:literal, section $osection:literal;)*]
+        required: [$($(#[$rdoc:meta])* $rfield:ident: $required:ty, section $rsection:literal;)*]
+        optional: [$($(#[$odoc:meta])* $ofield:ident: $optional:ty, section $osection:literal;)*]
     ) => {
         $then! { $($required,)* $($optional,)* }
     };
@@ -260,30 +269,98 @@ pub struct GroupLayout {
     pub optional: bool,
 }
 
-/// Generates, from [`param_groups!`], the [`Param`] impls, [`PARAM_GROUPS`] and the tuple
-/// types that hold one Gaussian's groups.
+/// Generates, from [`param_groups!`], the [`Param`] impls, [`PARAM_GROUPS`], the
+/// [`GaussianParams`] record and the tuple types that hold one Gaussian's groups.
 macro_rules! declare_params {
     (
-        required: [$($required:ty => $rname:literal, section $rsection:literal;)*]
-        optional: [$($optional:ty => $oname:literal, section $osection:literal;)*]
+        required: [$($(#[$rdoc:meta])* $rfield:ident: $required:ty, section $rsection:literal;)*]
+        optional: [$($(#[$odoc:meta])* $ofield:ident: $optional:ty, section $osection:literal;)*]
     ) => {
         /// Every parameter group, in the order of [`param_groups!`].
         pub const PARAM_GROUPS: &[GroupLayout] = &[
             $(GroupLayout {
-                name: $rname,
+                name: stringify!($rfield),
                 floats: <$required as Param>::FLOATS,
                 section: $rsection,
                 optional: false,
             },)*
             $(GroupLayout {
-                name: $oname,
+                name: stringify!($ofield),
                 floats: <$optional as Param>::FLOATS,
                 section: $osection,
                 optional: true,
             },)*
         ];
 
-        declare_params!(@impl 0usize; $($required => $rname,)* $($optional => $oname,)*);
+        declare_params!(@impl 0usize; $($rfield: $required,)* $($ofield: $optional,)*);
+
+        /// One value of every parameter group of a Gaussian (also used for its Adam moments,
+        /// which have the same shape).
+        #[derive(Clone, Copy, Debug, Default, PartialEq)]
+        pub struct GaussianParams {
+            $($(#[$rdoc])* pub $rfield: $required,)*
+            $($(#[$odoc])* pub $ofield: $optional,)*
+        }
+
+        impl GaussianParams {
+            /// Copies the components of a [`ParamRefs`] query item (absent optional groups
+            /// are zero).
+            pub fn from_refs(refs: ParamRefs<'_>) -> Self {
+                let ($($rfield,)* $($ofield,)*) = refs;
+                Self {
+                    $($rfield: *$rfield,)*
+                    $($ofield: $ofield.copied().unwrap_or_default(),)*
+                }
+            }
+
+            /// The first and second Adam moments of an [`AdamRefs`] query item, as records.
+            pub fn moments_from_refs(refs: AdamRefs<'_>) -> [Self; 2] {
+                let ($($rfield,)* $($ofield,)*) = refs;
+                $(let $ofield = $ofield.copied().unwrap_or_default();)*
+                [
+                    Self { $($rfield: $rfield.m,)* $($ofield: $ofield.m,)* },
+                    Self { $($rfield: $rfield.v,)* $($ofield: $ofield.v,)* },
+                ]
+            }
+
+            /// The components for spawning this Gaussian with Adam moments `m` and `v`:
+            /// every required group, and separately the optional ones (see
+            /// [`spawn_gaussians`]).
+            pub fn bundles_with_moments(
+                self,
+                m: &Self,
+                v: &Self,
+            ) -> (GaussianBundle, OptionalBundle) {
+                (
+                    (
+                        ($(self.$rfield,)*),
+                        (
+                            Default::default(),
+                            ($(Adam { m: m.$rfield, v: v.$rfield },)*),
+                        ),
+                        Default::default(),
+                    ),
+                    ($((self.$ofield, Grad::default(), Adam { m: m.$ofield, v: v.$ofield }),)*),
+                )
+            }
+        }
+
+        $(impl GroupOf<$required> for GaussianParams {
+            fn group(&self) -> &$required {
+                &self.$rfield
+            }
+            fn group_mut(&mut self) -> &mut $required {
+                &mut self.$rfield
+            }
+        })*
+        $(impl GroupOf<$optional> for GaussianParams {
+            fn group(&self) -> &$optional {
+                &self.$ofield
+            }
+            fn group_mut(&mut self) -> &mut $optional {
+                &mut self.$ofield
+            }
+        })*
 
         /// The parameters of the required groups, one tuple per Gaussian.
         pub type RequiredParams = ($($required,)*);
@@ -293,6 +370,10 @@ macro_rules! declare_params {
 
         /// Gradients and Adam moments of every required parameter group.
         pub type OptimizerState = (($(Grad<$required>,)*), AdamMoments);
+
+        /// The optional groups of one Gaussian with their gradients and Adam moments: spawned
+        /// with its [`GaussianBundle`] when the model uses them.
+        pub type OptionalBundle = ($(($optional, Grad<$optional>, Adam<$optional>),)*);
 
         /// The parameter components of one Gaussian, as a read-only query.
         pub type ParamRefs<'a> = ($(&'a $required,)* $(Option<&'a $optional>,)*);
@@ -305,14 +386,23 @@ macro_rules! declare_params {
             Default::default()
         }
     };
-    (@impl $index:expr; $component:ty => $name:literal, $($rest:tt)*) => {
+    (@impl $index:expr; $field:ident: $component:ty, $($rest:tt)*) => {
         impl Param for $component {
-            const NAME: &'static str = $name;
+            const NAME: &'static str = stringify!($field);
             const INDEX: usize = $index;
         }
         declare_params!(@impl $index + 1usize; $($rest)*);
     };
     (@impl $index:expr;) => {};
+}
+
+/// Access to the value of parameter group `P` in a record that holds every group
+/// ([`GaussianParams`]), for code generic over the groups.
+pub trait GroupOf<P: Param> {
+    /// The group's value.
+    fn group(&self) -> &P;
+    /// The group's value, writable.
+    fn group_mut(&mut self) -> &mut P;
 }
 
 param_groups!(declare_params);
@@ -330,99 +420,43 @@ pub struct Adam<P: Param> {
     pub v: P,
 }
 
-/// Every parameter of a new Gaussian, with zeroed gradients, Adam moments and statistics.
-///
-/// This is the one place that lists the components of a Gaussian.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct GaussianParams {
-    /// Canonical mean.
-    pub position: Position,
-    /// Fourier motion.
-    pub fourier: Fourier,
-    /// Temporal centre and scale.
-    pub temporal: Temporal,
-    /// Spatial opacity logit.
-    pub opacity: Opacity,
-    /// Rotation polynomial.
-    pub rotation: Rotation,
-    /// Log-scale polynomial.
-    pub scale: Scale,
-    /// SH colour, band 0.
-    pub color: Color,
-    /// SH colour, bands 1–3 (spawned only when the model's SH degree is above 0).
-    pub color_rest: ColorRest,
-}
-
 impl GaussianParams {
-    /// Copies the components of a [`ParamRefs`] query item.
-    pub fn from_refs(refs: ParamRefs<'_>) -> Self {
-        let (position, fourier, temporal, opacity, rotation, scale, color, color_rest) = refs;
-        Self {
-            position: *position,
-            fourier: *fourier,
-            temporal: *temporal,
-            opacity: *opacity,
-            rotation: *rotation,
-            scale: *scale,
-            color: *color,
-            color_rest: color_rest.copied().unwrap_or_default(),
-        }
-    }
-
     /// All SH coefficients, band 0 first.
     pub fn sh(&self) -> ShCoefficients {
         sh_coefficients(&self.color, Some(&self.color_rest))
     }
 
-    /// The higher SH bands with zeroed gradient and Adam moments, for spawning beside
+    /// The optional groups with zeroed gradients and Adam moments, for spawning beside
     /// [`Self::bundle`].
-    pub fn color_rest_bundle(&self) -> ColorRestBundle {
-        (self.color_rest, Grad::default(), Adam::default())
+    pub fn optional_bundle(&self) -> OptionalBundle {
+        self.bundles_with_moments(&Self::default(), &Self::default())
+            .1
     }
 
-    /// The full component bundle for spawning this Gaussian.
+    /// The components of the required groups for spawning this Gaussian, with zeroed
+    /// gradients, Adam moments and statistics.
     pub fn bundle(self) -> GaussianBundle {
-        (
-            (
-                self.position,
-                self.fourier,
-                self.temporal,
-                self.opacity,
-                self.rotation,
-                self.scale,
-                self.color,
-            ),
-            fresh_optimizer_state(),
-            (
-                GradAccum::default(),
-                WarpedTime::default(),
-                Deformed::default(),
-                SplatSlot::default(),
-            ),
-        )
+        self.bundles_with_moments(&Self::default(), &Self::default())
+            .0
     }
 }
-
-/// The higher SH bands of one Gaussian with their gradient and Adam moments: spawned with its
-/// [`GaussianBundle`] when the model's SH degree is above 0.
-pub type ColorRestBundle = (ColorRest, Grad<ColorRest>, Adam<ColorRest>);
 
 /// Heap bytes of the components of one Gaussian of a model of SH degree `sh_degree`.
 pub fn gaussian_bytes(sh_degree: u32) -> usize {
     let rest = if sh_degree > 0 {
-        std::mem::size_of::<ColorRestBundle>()
+        std::mem::size_of::<OptionalBundle>()
     } else {
         0
     };
     std::mem::size_of::<GaussianBundle>() + rest
 }
 
-/// Spawns Gaussians, with their higher SH bands only when `sh_degree` (the model's highest
-/// degree) is above 0.
+/// Spawns Gaussians, with their optional groups (the higher SH bands) only when `sh_degree`
+/// (the model's highest degree) is above 0.
 pub fn spawn_gaussians(
     world: &mut World,
     sh_degree: u32,
-    gaussians: impl IntoIterator<Item = (GaussianBundle, ColorRestBundle)>,
+    gaussians: impl IntoIterator<Item = (GaussianBundle, OptionalBundle)>,
 ) {
     let gaussians = gaussians.into_iter();
     if sh_degree > 0 {
@@ -432,7 +466,7 @@ pub fn spawn_gaussians(
     }
 }
 
-/// Every component of one Gaussian but the higher SH bands ([`ColorRestBundle`]).
+/// Every component of one Gaussian but the optional groups ([`OptionalBundle`]).
 pub type GaussianBundle = (
     RequiredParams,
     OptimizerState,

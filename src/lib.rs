@@ -59,6 +59,7 @@ pub mod data;
 pub mod gpu;
 pub mod init;
 pub mod io;
+pub mod layout;
 pub mod metrics;
 pub mod model;
 pub mod raster;

@@ -270,7 +270,7 @@ pub fn spawn_points(
             },
             color_rest: ColorRest::default(),
         };
-        (params.bundle(), params.color_rest_bundle())
+        (params.bundle(), params.optional_bundle())
     });
     spawn_gaussians(world, sh_degree, gaussians);
 }

@@ -12,8 +12,8 @@ use bevy_ecs::system::RunSystemOnce;
 use crate::components::{
     Adam, Deformed, Grad, GradAccum, PARAM_GROUPS, Param, SplatSlot, WarpedTime, each_param,
 };
-use crate::gpu::layout::{PARAM_FLOATS, SECTIONS, WIDTHS, group_range, offset_in_section};
 use crate::gpu::{DeformSettings, GpuTraining, ResidentState, StatsConfig};
+use crate::layout::{PARAM_FLOATS, SECTIONS, WIDTHS, group_range, offset_in_section};
 use crate::resources::{
     Fault, LossImage, NumericFault, Settings, SplatBuffers, TrainState, ViewSample,
 };

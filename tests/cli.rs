@@ -612,7 +612,7 @@ fn gpu_trained_run_saves_evaluates_resumes_and_exports() {
     let moved = checkpoint
         .gaussians
         .iter()
-        .filter(|g| g.adam.0.m.values().iter().any(|m| *m != 0.0))
+        .filter(|g| g.m.position.values().iter().any(|m| *m != 0.0))
         .count();
     assert!(
         moved * 2 > checkpoint.gaussians.len(),

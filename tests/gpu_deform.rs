@@ -276,7 +276,7 @@ fn run_cpu(
     });
     for (params, warped) in gaussians {
         let e = world
-            .spawn((params.bundle(), params.color_rest_bundle()))
+            .spawn((params.bundle(), params.optional_bundle()))
             .id();
         *world.get_mut::<WarpedTime>(e).unwrap() = *warped;
     }

@@ -1,8 +1,8 @@
 //! The shaders' parameter layout (`shaders/param_layout.wgsl`) is the one the Rust declaration
-//! of the parameter groups gives (`tadgs::gpu::layout::wgsl_layout`). Regenerate the file with
+//! of the parameter groups gives (`tadgs::layout::wgsl_layout`). Regenerate the file with
 //! `TADGS_BLESS=1 cargo test --release --test gpu_layout`.
 
-use tadgs::gpu::layout::wgsl_layout;
+use tadgs::layout::wgsl_layout;
 
 const PATH: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/param_layout.wgsl");
 

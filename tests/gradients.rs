@@ -96,7 +96,7 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
             color,
             color_rest,
         };
-        world.spawn((params.bundle(), params.color_rest_bundle()));
+        world.spawn((params.bundle(), params.optional_bundle()));
     }
     world
 }

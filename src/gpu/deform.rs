@@ -43,7 +43,7 @@ const WORKGROUP: u32 = 64;
 /// Most workgroups per dispatch dimension.
 const MAX_GROUPS: u32 = 65_535;
 
-use super::layout::{PARAM_FLOATS, WIDTHS};
+use crate::layout::{PARAM_FLOATS, WIDTHS};
 
 /// f32 values per splat record (`SPLAT_STRIDE`).
 const SPLAT_FLOATS: usize = 16;

@@ -25,17 +25,16 @@
 mod adam;
 mod deform;
 mod kernel;
-pub mod layout;
 mod pipeline;
 mod raster;
 mod scan;
 mod sort;
 mod stats;
 
+pub use crate::layout::SECTION_NAMES;
 pub use adam::{GpuAdam, GpuParamGroup};
 pub use deform::{DeformSettings, GpuDeformer, ParamGradients, ParamSlices};
 pub use kernel::set_max_dispatch_width;
-pub use layout::SECTION_NAMES;
 pub use pipeline::{GpuTraining, GradientFault, ResidentState};
 pub use raster::GpuRasterizer;
 pub use scan::GpuScan;

@@ -14,13 +14,13 @@ use bytemuck::{Pod, Zeroable};
 
 use super::adam::AdamUniforms;
 use super::kernel::{self, bind, dispatch, groups_for, storage};
-use super::layout::{PARAM_FLOATS, SECTION_NAMES, SECTIONS, WIDTHS, group_range};
 use super::{
     DeformSettings, GpuAdam, GpuBinner, GpuContext, GpuDeformer, GpuError, GpuRasterizer, GpuStats,
     GrowBuffer, SplatBox, StatsConfig,
 };
 use crate::components::{GradAccum, Temporal, WarpedTime};
 use crate::data::Camera;
+use crate::layout::{PARAM_FLOATS, SECTION_NAMES, SECTIONS, WIDTHS, group_range};
 use crate::raster::RenderOutput;
 
 const PIPELINE_WGSL: &str = include_str!("../../shaders/pipeline.wgsl");

@@ -20,17 +20,10 @@ use rand_chacha::ChaCha8Rng;
 use safetensors::tensor::Dtype;
 use serde::{Deserialize, Serialize};
 
-use bytemuck::Pod;
-
 use super::model::{
-    ModelError, NamedTensor, checked_metadata, column, name, param_tensors, read_column,
-    read_param_tensors, write_tensors,
+    ModelError, NamedTensor, checked_metadata, param_tensors, read_param_tensors, write_tensors,
 };
-use crate::components::{
-    Adam, AdamMoments, AdamRefs, Color, ColorRest, Fourier, GaussianParams, GradAccum, Opacity,
-    Param, ParamRefs, Position, Rotation, Scale, ShCoefficients, Temporal, sh_coefficients,
-    spawn_gaussians, split_sh,
-};
+use crate::components::{AdamRefs, GaussianParams, GradAccum, ParamRefs, spawn_gaussians};
 use crate::report::TrainingLog;
 use crate::resources::{CameraExposures, DensifyReport, Rng, TrainState, ViewOrder};
 use crate::scene::SceneConfig;
@@ -86,10 +79,10 @@ pub enum CheckpointError {
 pub struct GaussianState {
     /// Every parameter component.
     pub params: GaussianParams,
-    /// Adam moments of every parameter group but the higher SH bands.
-    pub adam: AdamMoments,
-    /// Adam moments of the higher SH bands (zero when the Gaussian has none).
-    pub adam_rest: Adam<ColorRest>,
+    /// Adam first moments of every parameter group (zero for a group the Gaussian lacks).
+    pub m: GaussianParams,
+    /// Adam second moments of every parameter group.
+    pub v: GaussianParams,
     /// Densification statistics since the last densification step.
     pub accum: GradAccum,
 }
@@ -170,13 +163,14 @@ impl Checkpoint {
         let gaussians: Vec<GaussianState> = world
             .query::<(ParamRefs, AdamRefs, &GradAccum)>()
             .iter(world)
-            .map(|(params, adam, accum)| GaussianState {
-                params: GaussianParams::from_refs(params),
-                adam: (
-                    *adam.0, *adam.1, *adam.2, *adam.3, *adam.4, *adam.5, *adam.6,
-                ),
-                adam_rest: adam.7.copied().unwrap_or_default(),
-                accum: *accum,
+            .map(|(params, adam, accum)| {
+                let [m, v] = GaussianParams::moments_from_refs(adam);
+                GaussianState {
+                    params: GaussianParams::from_refs(params),
+                    m,
+                    v,
+                    accum: *accum,
+                }
             })
             .collect();
         let train = *world.resource::<TrainState>();
@@ -214,12 +208,9 @@ impl Checkpoint {
             world,
             s.scene.model.sh_degree,
             self.gaussians.iter().map(|g| {
-                let mut bundle = g.params.bundle();
-                bundle.1.1 = g.adam;
+                let (mut bundle, optional) = g.params.bundles_with_moments(&g.m, &g.v);
                 bundle.2.0 = g.accum;
-                let mut rest = g.params.color_rest_bundle();
-                rest.2 = g.adam_rest;
-                (bundle, rest)
+                (bundle, optional)
             }),
         );
         *world.resource_mut::<TrainState>() = TrainState {
@@ -281,19 +272,12 @@ impl Checkpoint {
     fn write_files(&self, dir: &Path) -> Result<(), CheckpointError> {
         let params: Vec<GaussianParams> = self.gaussians.iter().map(|g| g.params).collect();
         let mut tensors = param_tensors(&params, "");
-        let g = &self.gaussians;
-        tensors.extend(adam_tensors::<Position, _>(g, |g| adam_of(&g.adam.0)));
-        tensors.extend(adam_tensors::<Fourier, _>(g, |g| adam_of(&g.adam.1)));
-        tensors.extend(adam_tensors::<Temporal, _>(g, |g| adam_of(&g.adam.2)));
-        tensors.extend(adam_tensors::<Opacity, _>(g, |g| adam_of(&g.adam.3)));
-        tensors.extend(adam_tensors::<Rotation, _>(g, |g| adam_of(&g.adam.4)));
-        tensors.extend(adam_tensors::<Scale, _>(g, |g| adam_of(&g.adam.5)));
-        tensors.extend(adam_tensors::<Color, _>(g, |g| {
-            [
-                sh_coefficients(&g.adam.6.m, Some(&g.adam_rest.m)),
-                sh_coefficients(&g.adam.6.v, Some(&g.adam_rest.v)),
-            ]
-        }));
+        let moments: [(&str, fn(&GaussianState) -> GaussianParams); 2] =
+            [("adam.m.", |g| g.m), ("adam.v.", |g| g.v)];
+        for (prefix, moments) in moments {
+            let moments: Vec<GaussianParams> = self.gaussians.iter().map(moments).collect();
+            tensors.extend(param_tensors(&moments, prefix));
+        }
         tensors.extend(accum_tensors(&self.gaussians));
         let metadata = HashMap::from([
             ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
@@ -381,50 +365,6 @@ impl Checkpoint {
 struct LogFile {
     iteration: u32,
     log: TrainingLog,
-}
-
-/// The first and second moments of group `P` as tensors `adam.m.<group>`, `adam.v.<group>`;
-/// `moments` gives a Gaussian's `[m, v]` as values of type `T` (the full SH set for colour).
-fn adam_tensors<P: Param, T: Pod>(
-    gaussians: &[GaussianState],
-    moments: impl Fn(&GaussianState) -> [T; 2],
-) -> [NamedTensor; 2] {
-    [
-        column(
-            name::<P>("adam.m."),
-            gaussians.iter().map(|g| moments(g)[0]),
-        ),
-        column(
-            name::<P>("adam.v."),
-            gaussians.iter().map(|g| moments(g)[1]),
-        ),
-    ]
-}
-
-/// The moments of a group as components.
-fn adam_of<P: Param>(adam: &Adam<P>) -> [P; 2] {
-    [adam.m, adam.v]
-}
-
-/// Reads the moments written by [`adam_tensors`] for `rows` Gaussians, as values of type `T`.
-fn read_moments<P: Param, T: Pod>(
-    path: &Path,
-    tensors: &safetensors::SafeTensors<'_>,
-    rows: usize,
-) -> Result<Vec<[T; 2]>, ModelError> {
-    let m = read_column::<T>(path, tensors, name::<P>("adam.m."), Some(rows))?;
-    let v = read_column::<T>(path, tensors, name::<P>("adam.v."), Some(rows))?;
-    Ok(m.into_iter().zip(v).map(|(m, v)| [m, v]).collect())
-}
-
-/// Reads the moments of group `P` for `rows` Gaussians.
-fn read_adam<P: Param>(
-    path: &Path,
-    tensors: &safetensors::SafeTensors<'_>,
-    rows: usize,
-) -> Result<Vec<Adam<P>>, ModelError> {
-    let moments = read_moments::<P, P>(path, tensors, rows)?;
-    Ok(moments.into_iter().map(|[m, v]| Adam { m, v }).collect())
 }
 
 /// The densification statistics: `grad_accum` (f32: Σw·g, Σw, Σψ̄, max radius) and
@@ -534,46 +474,25 @@ fn read_gaussian_states(
         )),
         other => other.into(),
     })?;
-    let position = read_adam::<Position>(path, &tensors, n)?;
-    let fourier = read_adam::<Fourier>(path, &tensors, n)?;
-    let temporal = read_adam::<Temporal>(path, &tensors, n)?;
-    let opacity = read_adam::<Opacity>(path, &tensors, n)?;
-    let rotation = read_adam::<Rotation>(path, &tensors, n)?;
-    let scale = read_adam::<Scale>(path, &tensors, n)?;
-    let color = read_moments::<Color, ShCoefficients>(path, &tensors, n)?;
+    let m = read_param_tensors(path, &tensors, "adam.m.", Some(n))?;
+    let v = read_param_tensors(path, &tensors, "adam.v.", Some(n))?;
     let floats = raw_tensor(&tensors, "grad_accum", Dtype::F32, [n, 4]).map_err(&invalid)?;
     let counts = raw_tensor(&tensors, "grad_accum_count", Dtype::U32, [n, 1]).map_err(&invalid)?;
     let word = |bytes: &[u8], i: usize| -> [u8; 4] {
         bytes[4 * i..4 * i + 4].try_into().expect("4 bytes")
     };
     Ok((0..n)
-        .map(|i| {
-            let [m, v] = &color[i];
-            let (m_dc, m_rest) = split_sh(m);
-            let (v_dc, v_rest) = split_sh(v);
-            GaussianState {
-                params: params[i],
-                adam: (
-                    position[i],
-                    fourier[i],
-                    temporal[i],
-                    opacity[i],
-                    rotation[i],
-                    scale[i],
-                    Adam { m: m_dc, v: v_dc },
-                ),
-                adam_rest: Adam {
-                    m: m_rest,
-                    v: v_rest,
-                },
-                accum: GradAccum {
-                    weighted_grad: f32::from_le_bytes(word(floats, 4 * i)),
-                    weight: f32::from_le_bytes(word(floats, 4 * i + 1)),
-                    lifespan_sum: f32::from_le_bytes(word(floats, 4 * i + 2)),
-                    max_radius: f32::from_le_bytes(word(floats, 4 * i + 3)),
-                    count: u32::from_le_bytes(word(counts, i)),
-                },
-            }
+        .map(|i| GaussianState {
+            params: params[i],
+            m: m[i],
+            v: v[i],
+            accum: GradAccum {
+                weighted_grad: f32::from_le_bytes(word(floats, 4 * i)),
+                weight: f32::from_le_bytes(word(floats, 4 * i + 1)),
+                lifespan_sum: f32::from_le_bytes(word(floats, 4 * i + 2)),
+                max_radius: f32::from_le_bytes(word(floats, 4 * i + 3)),
+                count: u32::from_le_bytes(word(counts, i)),
+            },
         })
         .collect())
 }

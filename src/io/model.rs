@@ -13,12 +13,10 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
-use bytemuck::Pod;
-
 use crate::components::{
-    Color, Fourier, GaussianParams, Opacity, Param, ParamRefs, Position, Rotation, Scale,
-    ShCoefficients, Temporal, spawn_gaussians, split_sh,
+    GaussianParams, GroupOf, PARAM_GROUPS, Param, ParamRefs, each_param, spawn_gaussians,
 };
+use crate::layout::{SECTION_NAMES, SECTIONS, WIDTHS, offset_in_section};
 use crate::scene::{DataSource, ModelConfig, SceneConfig};
 
 /// Value of the `format` metadata key.
@@ -155,7 +153,7 @@ impl Model {
             self.sh_degree.max(scene_degree),
             self.gaussians
                 .iter()
-                .map(|g| (g.bundle(), g.color_rest_bundle())),
+                .map(|g| (g.bundle(), g.optional_bundle())),
         );
     }
 
@@ -281,26 +279,41 @@ pub(crate) fn write_tensors(
     })
 }
 
-/// Every parameter component of `gaussians`, one tensor each, named `prefix` + component name.
+/// Every parameter group of `gaussians`, one tensor per section of the layout
+/// ([`crate::layout`]), named `prefix` + section name: the `color` tensor holds every SH band
+/// (48 values per Gaussian) whether or not the Gaussians carry
+/// [`crate::components::ColorRest`], so files do not depend on the in-memory layout.
 pub(crate) fn param_tensors(gaussians: &[GaussianParams], prefix: &str) -> Vec<NamedTensor> {
-    vec![
-        column(
-            name::<Position>(prefix),
-            gaussians.iter().map(|g| g.position),
-        ),
-        column(name::<Fourier>(prefix), gaussians.iter().map(|g| g.fourier)),
-        column(
-            name::<Temporal>(prefix),
-            gaussians.iter().map(|g| g.temporal),
-        ),
-        column(name::<Opacity>(prefix), gaussians.iter().map(|g| g.opacity)),
-        column(
-            name::<Rotation>(prefix),
-            gaussians.iter().map(|g| g.rotation),
-        ),
-        column(name::<Scale>(prefix), gaussians.iter().map(|g| g.scale)),
-        column(name::<Color>(prefix), gaussians.iter().map(|g| g.sh())),
-    ]
+    let mut sections: [Vec<f32>; SECTIONS] = Default::default();
+    for (section, width) in sections.iter_mut().zip(WIDTHS) {
+        section.resize(width * gaussians.len(), 0.0);
+    }
+    macro_rules! put_every_group {
+        ($($group:ty,)*) => {
+            $(put_group::<$group>(gaussians, &mut sections);)*
+        };
+    }
+    each_param!(put_every_group);
+    sections
+        .iter()
+        .zip(SECTION_NAMES)
+        .zip(WIDTHS)
+        .map(|((values, section), width)| float_tensor(format!("{prefix}{section}"), width, values))
+        .collect()
+}
+
+/// Copies group `P` of every Gaussian into its place in the section arrays.
+fn put_group<P: Param>(gaussians: &[GaussianParams], sections: &mut [Vec<f32>; SECTIONS])
+where
+    GaussianParams: GroupOf<P>,
+{
+    let section = PARAM_GROUPS[P::INDEX].section;
+    let (width, offset) = (WIDTHS[section], offset_in_section(P::INDEX));
+    for (i, gaussian) in gaussians.iter().enumerate() {
+        let at = i * width + offset;
+        sections[section][at..at + P::FLOATS]
+            .copy_from_slice(GroupOf::<P>::group(gaussian).values());
+    }
 }
 
 /// Reads the tensors written by [`param_tensors`] with the same `prefix`; `rows` must match
@@ -311,63 +324,56 @@ pub(crate) fn read_param_tensors(
     prefix: &str,
     rows: Option<usize>,
 ) -> Result<Vec<GaussianParams>, ModelError> {
-    let positions: Vec<Position> = read_column(path, tensors, name::<Position>(prefix), rows)?;
-    let n = Some(positions.len());
-    let fourier: Vec<Fourier> = read_column(path, tensors, name::<Fourier>(prefix), n)?;
-    let temporal: Vec<Temporal> = read_column(path, tensors, name::<Temporal>(prefix), n)?;
-    let opacity: Vec<Opacity> = read_column(path, tensors, name::<Opacity>(prefix), n)?;
-    let rotation: Vec<Rotation> = read_column(path, tensors, name::<Rotation>(prefix), n)?;
-    let scale: Vec<Scale> = read_column(path, tensors, name::<Scale>(prefix), n)?;
-    let sh: Vec<ShCoefficients> = read_column(path, tensors, name::<Color>(prefix), n)?;
-    Ok((0..positions.len())
-        .map(|i| {
-            let (color, color_rest) = split_sh(&sh[i]);
-            GaussianParams {
-                position: positions[i],
-                fourier: fourier[i],
-                temporal: temporal[i],
-                opacity: opacity[i],
-                rotation: rotation[i],
-                scale: scale[i],
-                color,
-                color_rest,
-            }
-        })
-        .collect())
-}
-
-/// The tensor name of parameter group `P`: `prefix` + [`Param::NAME`]. The `color` tensor
-/// holds every SH band (48 values per Gaussian) whether or not the Gaussians carry
-/// [`crate::components::ColorRest`], so files do not depend on the in-memory layout.
-pub(crate) fn name<P: Param>(prefix: &str) -> String {
-    format!("{prefix}{}", P::NAME)
-}
-
-/// One all-`f32` value of every Gaussian as a tensor `name`.
-pub(crate) fn column<T: Pod>(name: String, rows: impl Iterator<Item = T>) -> NamedTensor {
-    let width = size_of::<T>() / 4;
-    let mut bytes = Vec::new();
-    for row in rows {
-        for v in bytemuck::cast_slice::<T, f32>(std::slice::from_ref(&row)) {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
+    let mut rows = rows;
+    let mut sections: [Vec<f32>; SECTIONS] = Default::default();
+    for ((section, name), width) in sections.iter_mut().zip(SECTION_NAMES).zip(WIDTHS) {
+        *section = read_floats(path, tensors, format!("{prefix}{name}"), width, rows)?;
+        rows = Some(section.len() / width);
     }
+    let mut gaussians = vec![GaussianParams::default(); rows.unwrap_or(0)];
+    macro_rules! get_every_group {
+        ($($group:ty,)*) => {
+            $(get_group::<$group>(&sections, &mut gaussians);)*
+        };
+    }
+    each_param!(get_every_group);
+    Ok(gaussians)
+}
+
+/// Copies group `P` of every Gaussian out of its place in the section arrays.
+fn get_group<P: Param>(sections: &[Vec<f32>; SECTIONS], gaussians: &mut [GaussianParams])
+where
+    GaussianParams: GroupOf<P>,
+{
+    let section = PARAM_GROUPS[P::INDEX].section;
+    let (width, offset) = (WIDTHS[section], offset_in_section(P::INDEX));
+    for (i, gaussian) in gaussians.iter_mut().enumerate() {
+        let at = i * width + offset;
+        GroupOf::<P>::group_mut(gaussian)
+            .values_mut()
+            .copy_from_slice(&sections[section][at..at + P::FLOATS]);
+    }
+}
+
+/// `values`, `width` per row, as the F32 tensor `name`.
+fn float_tensor(name: String, width: usize, values: &[f32]) -> NamedTensor {
     NamedTensor {
         name,
         dtype: Dtype::F32,
         width,
-        bytes,
+        bytes: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
     }
 }
 
-/// Reads tensor `name` as `rows × fields` f32 values (the fields of `T`); `rows` must match
-/// when given.
-pub(crate) fn read_column<T: Pod>(
+/// Reads the F32 tensor `name` of shape [rows, `width`], refusing NaN and infinite values;
+/// `rows` must match when given.
+pub(crate) fn read_floats(
     path: &Path,
     tensors: &safetensors::SafeTensors<'_>,
     name: String,
+    width: usize,
     rows: Option<usize>,
-) -> Result<Vec<T>, ModelError> {
+) -> Result<Vec<f32>, ModelError> {
     let tensor_error = |message: String| ModelError::Tensor {
         path: path.to_path_buf(),
         tensor: name.clone(),
@@ -376,7 +382,6 @@ pub(crate) fn read_column<T: Pod>(
     let view = tensors
         .tensor(&name)
         .map_err(|_| tensor_error("missing".into()))?;
-    let width = size_of::<T>() / 4;
     if view.dtype() != Dtype::F32 {
         return Err(tensor_error(format!(
             "dtype {:?}, expected F32",
@@ -390,15 +395,15 @@ pub(crate) fn read_column<T: Pod>(
             rows.map_or("N".to_string(), |n| n.to_string())
         )));
     }
-    let mut out = vec![T::zeroed(); shape[0]];
-    let values = bytemuck::cast_slice_mut::<T, f32>(&mut out);
-    for (value, bytes) in values.iter_mut().zip(view.data().chunks_exact(4)) {
-        *value = f32::from_le_bytes(bytes.try_into().expect("chunks of 4 bytes"));
-    }
+    let values: Vec<f32> = view
+        .data()
+        .chunks_exact(4)
+        .map(|bytes| f32::from_le_bytes(bytes.try_into().expect("chunks of 4 bytes")))
+        .collect();
     if values.iter().any(|v| !v.is_finite()) {
         return Err(tensor_error("holds NaN or infinite values".into()));
     }
-    Ok(out)
+    Ok(values)
 }
 
 #[cfg(test)]

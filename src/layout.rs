@@ -1,6 +1,9 @@
-//! The GPU-resident parameter layout, derived from the declaration of the parameter groups
-//! ([`crate::components::param_groups!`] / [`PARAM_GROUPS`]): one section per GPU group,
-//! structure of arrays, the groups that share a section stored one after the other in it.
+//! The parameter layout of the GPU-resident buffers and of the model files, derived from the
+//! declaration of the parameter groups ([`crate::components::param_groups!`] /
+//! [`PARAM_GROUPS`]): one section per stored group, the groups that share a section stored one
+//! after the other in it (the higher SH bands after the DC term, so files and kernels see one
+//! 48-value colour). The GPU buffers hold the sections as structure of arrays; model files and
+//! checkpoints hold one tensor per section, named after the section.
 //!
 //! The shaders read the same layout from `shaders/param_layout.wgsl`, which
 //! [`wgsl_layout`] writes: `TADGS_BLESS=1 cargo test --release --test gpu_layout` regenerates
@@ -104,7 +107,7 @@ pub fn group_range<P: Param>(count: usize, slot: usize) -> std::ops::Range<usize
 pub fn wgsl_layout() -> String {
     let mut out = String::from(
         "// Generated from the parameter declaration (`param_groups!` in src/components.rs) by\n\
-         // src/gpu/layout.rs; do not edit. Regenerate with\n\
+         // src/layout.rs; do not edit. Regenerate with\n\
          //   TADGS_BLESS=1 cargo test --release --test gpu_layout\n\n",
     );
     let constant = |out: &mut String, name: &str, value: usize| {
