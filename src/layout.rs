@@ -9,7 +9,7 @@
 //! [`wgsl_layout`] writes: `TADGS_BLESS=1 cargo test --release --test gpu_layout` regenerates
 //! it, and that test fails while the file and the declaration disagree.
 
-use crate::components::{PARAM_GROUPS, Param};
+use crate::components::{GaussianParams, GroupOf, PARAM_GROUPS, Param, each_param};
 use crate::model::deform::FOURIER_TERMS;
 use crate::model::sh::SH_COEFFS;
 
@@ -99,6 +99,72 @@ pub fn group_range<P: Param>(count: usize, slot: usize) -> std::ops::Range<usize
     let prefix: usize = WIDTHS[..section].iter().sum();
     let start = prefix * count + slot * WIDTHS[section] + offset_in_section(P::INDEX);
     start..start + P::FLOATS
+}
+
+/// Every group of `gaussians` in the layout, one array per section: section k holds
+/// [`WIDTHS`]`[k]` values per Gaussian, Gaussian-major.
+pub fn sections_of(gaussians: &[GaussianParams]) -> [Vec<f32>; SECTIONS] {
+    let mut sections: [Vec<f32>; SECTIONS] = Default::default();
+    for (section, width) in sections.iter_mut().zip(WIDTHS) {
+        section.resize(width * gaussians.len(), 0.0);
+    }
+    macro_rules! put_every_group {
+        ($($group:ty,)*) => {
+            $(put_group::<$group>(gaussians, &mut sections);)*
+        };
+    }
+    each_param!(put_every_group);
+    sections
+}
+
+/// The Gaussians held by `sections` (as [`sections_of`] lays them out).
+///
+/// # Panics
+/// Unless every section holds the same number of Gaussians.
+pub fn gaussians_of(sections: &[Vec<f32>; SECTIONS]) -> Vec<GaussianParams> {
+    let count = sections[0].len() / WIDTHS[0];
+    for (section, width) in sections.iter().zip(WIDTHS) {
+        assert_eq!(section.len(), count * width, "sections of one population");
+    }
+    let mut gaussians = vec![GaussianParams::default(); count];
+    macro_rules! get_every_group {
+        ($($group:ty,)*) => {
+            $(get_group::<$group>(sections, &mut gaussians);)*
+        };
+    }
+    each_param!(get_every_group);
+    gaussians
+}
+
+/// Where group `P` of Gaussian `i` lies in its section's array.
+fn in_section<P: Param>(i: usize) -> (usize, std::ops::Range<usize>) {
+    let section = PARAM_GROUPS[P::INDEX].section;
+    let start = i * WIDTHS[section] + offset_in_section(P::INDEX);
+    (section, start..start + P::FLOATS)
+}
+
+/// Copies group `P` of every Gaussian into its place in the section arrays.
+fn put_group<P: Param>(gaussians: &[GaussianParams], sections: &mut [Vec<f32>; SECTIONS])
+where
+    GaussianParams: GroupOf<P>,
+{
+    for (i, gaussian) in gaussians.iter().enumerate() {
+        let (section, range) = in_section::<P>(i);
+        sections[section][range].copy_from_slice(GroupOf::<P>::group(gaussian).values());
+    }
+}
+
+/// Copies group `P` of every Gaussian out of its place in the section arrays.
+fn get_group<P: Param>(sections: &[Vec<f32>; SECTIONS], gaussians: &mut [GaussianParams])
+where
+    GaussianParams: GroupOf<P>,
+{
+    for (i, gaussian) in gaussians.iter_mut().enumerate() {
+        let (section, range) = in_section::<P>(i);
+        GroupOf::<P>::group_mut(gaussian)
+            .values_mut()
+            .copy_from_slice(&sections[section][range]);
+    }
 }
 
 /// The WGSL constants of the layout (`shaders/param_layout.wgsl`), as the declaration gives

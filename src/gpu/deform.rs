@@ -43,7 +43,7 @@ const WORKGROUP: u32 = 64;
 /// Most workgroups per dispatch dimension.
 const MAX_GROUPS: u32 = 65_535;
 
-use crate::layout::{PARAM_FLOATS, WIDTHS};
+use crate::layout::{PARAM_FLOATS, WIDTHS, sections_of};
 
 /// f32 values per splat record (`SPLAT_STRIDE`).
 const SPLAT_FLOATS: usize = 16;
@@ -427,21 +427,8 @@ impl GpuDeformer {
         self.reserve_params(params.len())?;
         let host = &mut self.host_params;
         host.clear();
-        macro_rules! section {
-            ($field:ident) => {
-                for p in params {
-                    host.extend_from_slice(p.$field.values());
-                }
-            };
-        }
-        section!(position);
-        section!(fourier);
-        section!(temporal);
-        section!(opacity);
-        section!(rotation);
-        section!(scale);
-        for p in params {
-            host.extend(p.sh().as_flattened());
+        for section in sections_of(params) {
+            host.extend_from_slice(&section);
         }
         debug_assert_eq!(host.len(), params.len() * PARAM_FLOATS);
         if !host.is_empty() {

@@ -13,10 +13,8 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
-use crate::components::{
-    GaussianParams, GroupOf, PARAM_GROUPS, Param, ParamRefs, each_param, spawn_gaussians,
-};
-use crate::layout::{SECTION_NAMES, SECTIONS, WIDTHS, offset_in_section};
+use crate::components::{GaussianParams, ParamRefs, spawn_gaussians};
+use crate::layout::{SECTION_NAMES, SECTIONS, WIDTHS, gaussians_of, sections_of};
 use crate::scene::{DataSource, ModelConfig, SceneConfig};
 
 /// Value of the `format` metadata key.
@@ -284,36 +282,13 @@ pub(crate) fn write_tensors(
 /// (48 values per Gaussian) whether or not the Gaussians carry
 /// [`crate::components::ColorRest`], so files do not depend on the in-memory layout.
 pub(crate) fn param_tensors(gaussians: &[GaussianParams], prefix: &str) -> Vec<NamedTensor> {
-    let mut sections: [Vec<f32>; SECTIONS] = Default::default();
-    for (section, width) in sections.iter_mut().zip(WIDTHS) {
-        section.resize(width * gaussians.len(), 0.0);
-    }
-    macro_rules! put_every_group {
-        ($($group:ty,)*) => {
-            $(put_group::<$group>(gaussians, &mut sections);)*
-        };
-    }
-    each_param!(put_every_group);
+    let sections = sections_of(gaussians);
     sections
         .iter()
         .zip(SECTION_NAMES)
         .zip(WIDTHS)
         .map(|((values, section), width)| float_tensor(format!("{prefix}{section}"), width, values))
         .collect()
-}
-
-/// Copies group `P` of every Gaussian into its place in the section arrays.
-fn put_group<P: Param>(gaussians: &[GaussianParams], sections: &mut [Vec<f32>; SECTIONS])
-where
-    GaussianParams: GroupOf<P>,
-{
-    let section = PARAM_GROUPS[P::INDEX].section;
-    let (width, offset) = (WIDTHS[section], offset_in_section(P::INDEX));
-    for (i, gaussian) in gaussians.iter().enumerate() {
-        let at = i * width + offset;
-        sections[section][at..at + P::FLOATS]
-            .copy_from_slice(GroupOf::<P>::group(gaussian).values());
-    }
 }
 
 /// Reads the tensors written by [`param_tensors`] with the same `prefix`; `rows` must match
@@ -330,29 +305,7 @@ pub(crate) fn read_param_tensors(
         *section = read_floats(path, tensors, format!("{prefix}{name}"), width, rows)?;
         rows = Some(section.len() / width);
     }
-    let mut gaussians = vec![GaussianParams::default(); rows.unwrap_or(0)];
-    macro_rules! get_every_group {
-        ($($group:ty,)*) => {
-            $(get_group::<$group>(&sections, &mut gaussians);)*
-        };
-    }
-    each_param!(get_every_group);
-    Ok(gaussians)
-}
-
-/// Copies group `P` of every Gaussian out of its place in the section arrays.
-fn get_group<P: Param>(sections: &[Vec<f32>; SECTIONS], gaussians: &mut [GaussianParams])
-where
-    GaussianParams: GroupOf<P>,
-{
-    let section = PARAM_GROUPS[P::INDEX].section;
-    let (width, offset) = (WIDTHS[section], offset_in_section(P::INDEX));
-    for (i, gaussian) in gaussians.iter_mut().enumerate() {
-        let at = i * width + offset;
-        GroupOf::<P>::group_mut(gaussian)
-            .values_mut()
-            .copy_from_slice(&sections[section][at..at + P::FLOATS]);
-    }
+    Ok(gaussians_of(&sections))
 }
 
 /// `values`, `width` per row, as the F32 tensor `name`.
