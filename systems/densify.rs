@@ -8,8 +8,8 @@ use glam::{Quat, Vec3};
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::components::{
-    Adam, ColorRest, Deformed, Grad, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot,
-    Temporal, fresh_optimizer_state,
+    Adam, Deformed, Grad, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
+    each_param,
 };
 use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
@@ -128,7 +128,7 @@ pub fn accumulate_stats(
         });
 }
 
-/// What densification reads and edits of a Gaussian (and whether it has higher SH bands).
+/// What densification reads and edits of a Gaussian.
 pub type DensifyItem<'a> = (
     Entity,
     &'a mut Position,
@@ -136,7 +136,6 @@ pub type DensifyItem<'a> = (
     &'a mut Scale,
     &'a Opacity,
     &'a mut GradAccum,
-    Has<ColorRest>,
 );
 
 /// A Gaussian that qualified for cloning or splitting, `strength` = ḡ / threshold (≥ 1).
@@ -214,7 +213,7 @@ pub fn densify_and_prune(
     let mut faint = Vec::new();
     // Gaussians that qualified but were refused by the population cap.
     let mut capped = 0usize;
-    for (entity, _, _, scale, opacity, mut accum, _) in gaussians.iter_mut() {
+    for (entity, _, _, scale, opacity, mut accum) in gaussians.iter_mut() {
         let stats = std::mem::take(&mut *accum);
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
         let sigma = sigmoid(opacity.logit);
@@ -268,7 +267,7 @@ pub fn densify_and_prune(
         qualified = chosen;
     }
     for chosen in &qualified {
-        let Ok((entity, mut position, rotation, mut scale, _, _, has_rest)) =
+        let Ok((entity, mut position, rotation, mut scale, _, _)) =
             gaussians.get_mut(chosen.entity)
         else {
             continue;
@@ -276,7 +275,7 @@ pub fn densify_and_prune(
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
         if max_scale <= d.percent_dense * extent {
             // Clone: an identical copy with fresh optimiser state.
-            reset_optimizer(commands.entity(entity).clone_and_spawn(), has_rest);
+            reset_optimizer(commands.entity(entity).clone_and_spawn());
             report.cloned += 1;
         } else {
             // Split: the Gaussian and its copy move to two samples of itself, scales / 1.6.
@@ -298,7 +297,7 @@ pub fn densify_and_prune(
             for s in &mut scale.d0 {
                 *s -= SPLIT_SCALE_DIVISOR.ln();
             }
-            reset_optimizer(commands.entity(entity), has_rest);
+            reset_optimizer(commands.entity(entity));
             commands
                 .entity(entity)
                 .clone_and_spawn()
@@ -322,13 +321,18 @@ pub fn densify_and_prune(
     state.last_densify = report;
 }
 
-/// Zeroes the gradients and Adam moments of every parameter group of a Gaussian (`has_rest`:
-/// it carries the higher SH bands).
-fn reset_optimizer(mut gaussian: EntityCommands, has_rest: bool) {
-    gaussian.insert(fresh_optimizer_state());
-    if has_rest {
-        gaussian.insert((Grad::<ColorRest>::default(), Adam::<ColorRest>::default()));
-    }
+/// Zeroes the gradients and Adam moments of every parameter group the Gaussian has.
+fn reset_optimizer(mut gaussian: EntityCommands) {
+    gaussian.queue(|mut entity: EntityWorldMut| {
+        macro_rules! reset_every_group {
+            ($($group:ty,)*) => {
+                $(if entity.contains::<$group>() {
+                    entity.insert((Grad::<$group>::default(), Adam::<$group>::default()));
+                })*
+            };
+        }
+        each_param!(reset_every_group);
+    });
 }
 
 /// Caps every spatial opacity at 0.01 and clears its Adam moments.
