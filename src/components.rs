@@ -277,20 +277,10 @@ macro_rules! declare_params {
         optional: [$($(#[$odoc:meta])* $ofield:ident: $optional:ty, section $osection:literal;)*]
     ) => {
         /// Every parameter group, in the order of [`param_groups!`].
-        pub const PARAM_GROUPS: &[GroupLayout] = &[
-            $(GroupLayout {
-                name: stringify!($rfield),
-                floats: <$required as Param>::FLOATS,
-                section: $rsection,
-                optional: false,
-            },)*
-            $(GroupLayout {
-                name: stringify!($ofield),
-                floats: <$optional as Param>::FLOATS,
-                section: $osection,
-                optional: true,
-            },)*
-        ];
+        pub const PARAM_GROUPS: &[GroupLayout] = &declare_params!(@layouts
+            $($rfield: $required, $rsection, false;)*
+            $($ofield: $optional, $osection, true;)*
+        );
 
         declare_params!(@impl 0usize; $($rfield: $required,)* $($ofield: $optional,)*);
 
@@ -345,22 +335,7 @@ macro_rules! declare_params {
             }
         }
 
-        $(impl GroupOf<$required> for GaussianParams {
-            fn group(&self) -> &$required {
-                &self.$rfield
-            }
-            fn group_mut(&mut self) -> &mut $required {
-                &mut self.$rfield
-            }
-        })*
-        $(impl GroupOf<$optional> for GaussianParams {
-            fn group(&self) -> &$optional {
-                &self.$ofield
-            }
-            fn group_mut(&mut self) -> &mut $optional {
-                &mut self.$ofield
-            }
-        })*
+        declare_params!(@group_of $($rfield: $required,)* $($ofield: $optional,)*);
 
         /// The parameters of the required groups, one tuple per Gaussian.
         pub type RequiredParams = ($($required,)*);
@@ -394,6 +369,24 @@ macro_rules! declare_params {
         declare_params!(@impl $index + 1usize; $($rest)*);
     };
     (@impl $index:expr;) => {};
+    (@layouts $($field:ident: $component:ty, $section:literal, $optional:literal;)*) => {
+        [$(GroupLayout {
+            name: stringify!($field),
+            floats: <$component as Param>::FLOATS,
+            section: $section,
+            optional: $optional,
+        },)*]
+    };
+    (@group_of $($field:ident: $component:ty,)*) => {
+        $(impl GroupOf<$component> for GaussianParams {
+            fn group(&self) -> &$component {
+                &self.$field
+            }
+            fn group_mut(&mut self) -> &mut $component {
+                &mut self.$field
+            }
+        })*
+    };
 }
 
 /// Access to the value of parameter group `P` in a record that holds every group
