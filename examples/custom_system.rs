@@ -6,8 +6,14 @@
 //! ordinary component: densification clones carry it along. The schedule description printed
 //! at the start shows where the system runs.
 //!
+//! The same system works on the GPU-resident backend (`gpu` as the argument): there the
+//! gradients live on the GPU, and the `HostGradients` resource has them copied into the `Grad`
+//! components after Backward and back before Adam (the CPU backend ignores it; without it the
+//! GPU backend refuses the edit with an error instead of losing it).
+//!
 //! ```text
 //! cargo run --release --example custom_system
+//! cargo run --release --example custom_system -- gpu
 //! ```
 
 mod common;
@@ -16,7 +22,9 @@ use anyhow::Result;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 use tadgs::components::{Fourier, Grad, Position};
+use tadgs::scene::BackendKind;
 use tadgs::systems::describe::{SystemRow, describe, markdown_table};
+use tadgs::systems::resident::{HostGradients, sync_world};
 use tadgs::systems::{TrainSet, training_schedule};
 
 /// Marks a Gaussian whose position and motion stay as they were.
@@ -43,13 +51,18 @@ struct Outcome {
     free_moved: usize,
 }
 
-fn run(iterations: u32) -> Result<Outcome> {
+/// Trains `iterations` on `backend` with `freeze_box` in the schedule.
+fn run(iterations: u32, backend: BackendKind) -> Result<Outcome> {
+    let backend = format!("train.backend={backend:?}");
     let (_, mut world, _) = common::small_demo_world(&[
         // No densification here: a split moves the Gaussian it splits.
         "densify.from_iter=100000",
         "densify.until_iter=100000",
         "densify.opacity_reset_interval=0",
+        &backend,
     ])?;
+    // `freeze_box` edits gradients: on the GPU-resident backend they must visit the components.
+    world.insert_resource(HostGradients);
 
     // Tag the Gaussians inside the box and remember every starting state.
     let start: Vec<(Entity, Position, Fourier)> = world
@@ -70,6 +83,8 @@ fn run(iterations: u32) -> Result<Outcome> {
     for _ in 0..iterations {
         schedule.run(&mut world);
     }
+    // On the GPU-resident backend the parameters are read back only when asked.
+    sync_world(&mut world).map_err(|e| anyhow::anyhow!("{e}"))?;
 
     let (mut frozen, mut frozen_moved, mut free, mut free_moved) = (0, 0, 0, 0);
     for (entity, position, fourier) in start {
@@ -94,7 +109,11 @@ fn run(iterations: u32) -> Result<Outcome> {
 }
 
 fn main() -> Result<()> {
-    let outcome = run(100)?;
+    let backend = match std::env::args().nth(1).as_deref() {
+        Some("gpu") => BackendKind::Gpu,
+        _ => BackendKind::Cpu,
+    };
+    let outcome = run(100, backend)?;
     println!("{}", markdown_table(&outcome.schedule));
     println!(
         "frozen: {} Gaussians, {} moved; free: {} Gaussians, {} moved",
@@ -111,7 +130,27 @@ mod tests {
     /// 100 iterations no frozen Gaussian moved while more than 90 % of the free ones did.
     #[test]
     fn frozen_gaussians_stay_put_and_the_system_runs_in_order() {
-        let outcome = run(100).expect("the example runs");
+        check(&run(100, BackendKind::Cpu).expect("the example runs"));
+    }
+
+    /// The same on the GPU-resident backend (Mesa's lavapipe where there is no GPU), with
+    /// the same number of frozen Gaussians as on the CPU; skipped with a message where no
+    /// adapter exists, a failure under `CI=true`.
+    #[test]
+    fn frozen_gaussians_stay_put_on_the_gpu_backend_too() {
+        if let Err(e) = tadgs::gpu::GpuContext::new(false) {
+            if std::env::var("CI").is_ok_and(|v| v == "true") {
+                panic!("{e}; CI=true requires a GPU adapter");
+            }
+            eprintln!("skipping: {e}");
+            return;
+        }
+        let gpu = run(20, BackendKind::Gpu).expect("the example runs on the GPU");
+        check(&gpu);
+        assert_eq!(gpu.frozen, run(20, BackendKind::Cpu).unwrap().frozen);
+    }
+
+    fn check(outcome: &Outcome) {
         let index = |pred: &dyn Fn(&SystemRow) -> bool| -> Vec<usize> {
             outcome
                 .schedule

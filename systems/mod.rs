@@ -9,6 +9,9 @@
 //! the Splat, Backward, Adam and Densify sets instead of the CPU deformation, splatting,
 //! backward, guard, Adam and statistics systems (run conditions [`resident::on_gpu`] and
 //! [`resident::on_cpu`]); sample view, time warp, loss and densification stay on the CPU.
+//! Edits of components by systems of your own are honoured on both backends or refused with
+//! an error on the GPU one (see [`resident`]: [`resident::HostGradients`] for gradient edits,
+//! [`resident::resident_sync`] before parameter edits).
 
 pub mod adam;
 pub mod backward;
@@ -84,7 +87,8 @@ pub fn add_training_systems(schedule: &mut Schedule) {
     // Both backends: the loss, and so the exposure gradient, is on the CPU.
     schedule.add_systems(adam::adam_exposure.in_set(Adam));
     schedule.add_systems(
-        resident::resident_adam
+        (resident::resident_gradients_in, resident::resident_adam)
+            .chain()
             .run_if(resident::on_gpu)
             .in_set(Adam),
     );
@@ -130,7 +134,11 @@ pub fn add_backward_systems(schedule: &mut Schedule) {
             .in_set(Backward),
     );
     schedule.add_systems(
-        resident::resident_backward
+        (
+            resident::resident_backward,
+            resident::resident_gradients_out,
+        )
+            .chain()
             .run_if(resident::on_gpu)
             .in_set(Backward),
     );

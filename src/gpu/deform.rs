@@ -589,6 +589,21 @@ impl GpuDeformer {
         read(&self.gpu, &mut self.staging, &self.grads.buffer, bytes, out)
     }
 
+    /// Replaces the parameter gradients (the resident layout, `count × PARAM_FLOATS` values)
+    /// that the next Adam step reads.
+    pub(super) fn write_grad_values(&mut self, values: &[f32]) {
+        assert_eq!(
+            values.len(),
+            self.count * PARAM_FLOATS,
+            "one gradient per value"
+        );
+        if !values.is_empty() {
+            self.gpu
+                .queue
+                .write_buffer(&self.grads.buffer, 0, bytemuck::cast_slice(values));
+        }
+    }
+
     fn dispatch_backward(&mut self) {
         let n = self.count;
         let gpu = &self.gpu;

@@ -401,6 +401,15 @@ impl GpuTraining {
         self.deformer.read_grad_values(out)
     }
 
+    /// Replaces the gradients of the last backward pass, in the same layout as
+    /// [`GpuTraining::read_gradient_values`], before [`GpuTraining::adam`].
+    ///
+    /// # Panics
+    /// Unless `values` holds one gradient per resident value.
+    pub fn write_gradient_values(&mut self, values: &[f32]) {
+        self.deformer.write_grad_values(values);
+    }
+
     /// Copies the deformed Gaussians of the last forward pass into `out` (one per slot).
     pub fn read_deformed(
         &mut self,
