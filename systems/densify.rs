@@ -346,18 +346,11 @@ pub fn reset_opacity(mut gaussians: Query<(&mut Opacity, &mut Adam<Opacity>)>) {
         });
 }
 
-/// The densification stage's systems with their run conditions.
+/// The densification systems both backends share, with their run conditions: the only
+/// structural changes. Each backend adds its statistics (and, on the GPU, the read-back of the
+/// components) before them.
 pub fn densify_systems() -> ScheduleConfigs<ScheduleSystem> {
-    use super::resident;
     (
-        accumulate_stats.run_if(densifying).run_if(resident::on_cpu),
-        resident::resident_stats
-            .run_if(densifying)
-            .run_if(resident::on_gpu),
-        // The components are the truth again before they change.
-        resident::resident_sync
-            .run_if(resident::on_gpu)
-            .run_if(densify_step.or_else(opacity_reset_step)),
         densify_and_prune.run_if(densify_step),
         reset_opacity.run_if(opacity_reset_step),
     )

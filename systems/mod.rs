@@ -5,10 +5,12 @@
 //! Each stage is a [`TrainSet`]; [`training_schedule`] chains the sets once. Structural changes
 //! (spawn on clone/split, despawn on prune) happen only in [`TrainSet::Densify`].
 //!
-//! With a [`crate::gpu::GpuTraining`] resource (`backend: Gpu`) the [`resident`] systems run in
-//! the Splat, Backward, Adam and Densify sets instead of the CPU deformation, splatting,
-//! backward, guard, Adam and statistics systems (run conditions [`resident::on_gpu`] and
-//! [`resident::on_cpu`]); sample view, time warp, loss and densification stay on the CPU.
+//! The stages whose work differs between backends (deformation, splatting, backward and guard,
+//! Adam, the densification statistics) are installed by a [`BackendPlugin`]: [`CpuBackend`],
+//! or [`resident::GpuResidentBackend`], which runs them on the GPU when the world holds a
+//! [`crate::gpu::GpuTraining`] resource (`backend: Gpu`). Each plugin puts its systems into the
+//! same [`TrainSet`]s under its own run condition, so no stage's system asks which backend
+//! runs; sample view, time warp, loss and the structural part of densification are shared.
 //! Edits of components by systems of your own are honoured on both backends or refused with
 //! an error on the GPU one (see [`resident`]: [`resident::HostGradients`] for gradient edits,
 //! [`resident::resident_sync`] before parameter edits).
@@ -83,16 +85,69 @@ pub fn add_training_systems(schedule: &mut Schedule) {
     add_gradient_systems(schedule);
     // A NaN or infinity found after the backward pass must not reach the parameters.
     schedule.configure_sets((Adam, Densify).run_if(guard::healthy));
-    schedule.add_systems(adam::adam_systems().run_if(resident::on_cpu).in_set(Adam));
     // Both backends: the loss, and so the exposure gradient, is on the CPU.
     schedule.add_systems(adam::adam_exposure.in_set(Adam));
-    schedule.add_systems(
-        (resident::resident_gradients_in, resident::resident_adam)
-            .chain()
-            .run_if(resident::on_gpu)
-            .in_set(Adam),
-    );
     schedule.add_systems(densify::densify_systems().in_set(Densify));
+    for backend in BACKENDS {
+        backend.add_update_systems(schedule);
+    }
+}
+
+/// One backend: installs the systems of the stages whose work differs between backends into
+/// their [`TrainSet`]s, each under the backend's run condition (so a world runs exactly one
+/// backend's systems, chosen by its resources).
+pub trait BackendPlugin: Sync {
+    /// [`TrainSet::Deform`] and [`TrainSet::Splat`]: the sampled view into
+    /// [`crate::resources::SplatBuffers::render`].
+    fn add_render_systems(&self, schedule: &mut Schedule);
+    /// [`TrainSet::Backward`]: every [`crate::components::Grad`] (or its GPU copy) from
+    /// [`crate::resources::LossImage`], and the numeric guard.
+    fn add_backward_systems(&self, schedule: &mut Schedule);
+    /// [`TrainSet::Adam`] for the parameter groups, and in [`TrainSet::Densify`] the
+    /// statistics and whatever must happen before the shared systems change the population
+    /// ([`densify::densify_and_prune`], [`densify::reset_opacity`]).
+    fn add_update_systems(&self, schedule: &mut Schedule);
+}
+
+/// Every backend a training schedule carries; the world's resources pick the one that runs.
+pub const BACKENDS: [&dyn BackendPlugin; 2] = [&CpuBackend, &resident::GpuResidentBackend];
+
+/// The CPU backend (rayon): runs when the world has no [`crate::gpu::GpuTraining`]. Blending
+/// runs on the GPU instead when the world holds a [`crate::gpu::GpuRasterizer`], an
+/// accelerator for this backend's splatting and backward systems.
+pub struct CpuBackend;
+
+impl BackendPlugin for CpuBackend {
+    fn add_render_systems(&self, schedule: &mut Schedule) {
+        use TrainSet::*;
+        schedule.add_systems(deform::deform.run_if(resident::on_cpu).in_set(Deform));
+        schedule.add_systems(splat::splat.run_if(resident::on_cpu).in_set(Splat));
+    }
+
+    fn add_backward_systems(&self, schedule: &mut Schedule) {
+        schedule.add_systems(
+            (
+                backward::backward_splats,
+                backward::backward_parameters,
+                guard::check_gradients(),
+            )
+                .chain()
+                .run_if(resident::on_cpu)
+                .in_set(TrainSet::Backward),
+        );
+    }
+
+    fn add_update_systems(&self, schedule: &mut Schedule) {
+        use TrainSet::*;
+        schedule.add_systems(adam::adam_systems().run_if(resident::on_cpu).in_set(Adam));
+        schedule.add_systems(
+            densify::accumulate_stats
+                .run_if(densify::densifying)
+                .run_if(resident::on_cpu)
+                .in_set(Densify)
+                .before(densify::densify_and_prune),
+        );
+    }
 }
 
 /// Adds the stages that draw the current [`crate::resources::ViewSample`]: time warp,
@@ -101,14 +156,9 @@ pub fn add_render_systems(schedule: &mut Schedule) {
     use TrainSet::*;
     schedule.configure_sets((TimeWarp, Deform, Splat).chain());
     schedule.add_systems(time_warp::time_warp.in_set(TimeWarp));
-    schedule.add_systems(deform::deform.run_if(resident::on_cpu).in_set(Deform));
-    schedule.add_systems(splat::splat.run_if(resident::on_cpu).in_set(Splat));
-    schedule.add_systems(
-        (resident::resident_upload, resident::resident_forward)
-            .chain()
-            .run_if(resident::on_gpu)
-            .in_set(Splat),
-    );
+    for backend in BACKENDS {
+        backend.add_render_systems(schedule);
+    }
 }
 
 /// Adds the loss and backward stages (after splatting).
@@ -123,25 +173,9 @@ fn add_gradient_systems(schedule: &mut Schedule) {
 pub fn add_backward_systems(schedule: &mut Schedule) {
     use TrainSet::*;
     schedule.configure_sets((Splat, Loss, Backward).chain());
-    schedule.add_systems(
-        (
-            backward::backward_splats,
-            backward::backward_parameters,
-            guard::check_gradients(),
-        )
-            .chain()
-            .run_if(resident::on_cpu)
-            .in_set(Backward),
-    );
-    schedule.add_systems(
-        (
-            resident::resident_backward,
-            resident::resident_gradients_out,
-        )
-            .chain()
-            .run_if(resident::on_gpu)
-            .in_set(Backward),
-    );
+    for backend in BACKENDS {
+        backend.add_backward_systems(schedule);
+    }
 }
 
 /// The schedule of one training iteration.

@@ -1,6 +1,7 @@
-//! The training stages on the GPU-resident pipeline ([`GpuTraining`]): when that resource is
-//! present these systems run in place of the CPU deformation, splatting, backward, guard, Adam
-//! and statistics systems (which are skipped by [`on_cpu`]), in the same [`super::TrainSet`]s.
+//! The training stages on the GPU-resident pipeline ([`GpuTraining`]), installed by
+//! [`GpuResidentBackend`]: when that resource is present these systems run in place of the
+//! CPU deformation, splatting, backward, guard, Adam and statistics systems (which are skipped
+//! by [`on_cpu`]), in the same [`super::TrainSet`]s.
 //!
 //! The ECS components are the truth only after [`resident_sync`]: it runs before densification and
 //! opacity resets (and [`sync_world`] before checkpoints, export and evaluation) and marks the
@@ -43,6 +44,53 @@ pub struct HostGradients;
 struct ResidentTicks {
     uploaded: Tick,
     backward: Tick,
+}
+
+/// The GPU-resident backend: runs when the world holds a [`GpuTraining`] resource.
+pub struct GpuResidentBackend;
+
+impl super::BackendPlugin for GpuResidentBackend {
+    fn add_render_systems(&self, schedule: &mut Schedule) {
+        schedule.add_systems(
+            (resident_upload, resident_forward)
+                .chain()
+                .run_if(on_gpu)
+                .in_set(super::TrainSet::Splat),
+        );
+    }
+
+    fn add_backward_systems(&self, schedule: &mut Schedule) {
+        schedule.add_systems(
+            (resident_backward, resident_gradients_out)
+                .chain()
+                .run_if(on_gpu)
+                .in_set(super::TrainSet::Backward),
+        );
+    }
+
+    fn add_update_systems(&self, schedule: &mut Schedule) {
+        use super::densify::{
+            densify_and_prune, densify_step, densifying, opacity_reset_step, reset_opacity,
+        };
+        schedule.add_systems(
+            (resident_gradients_in, resident_adam)
+                .chain()
+                .run_if(on_gpu)
+                .in_set(super::TrainSet::Adam),
+        );
+        schedule.add_systems(
+            (
+                resident_stats.run_if(densifying),
+                // The components are the truth again before they change.
+                resident_sync.run_if(densify_step.or_else(opacity_reset_step)),
+            )
+                .chain()
+                .run_if(on_gpu)
+                .in_set(super::TrainSet::Densify)
+                .before(densify_and_prune)
+                .before(reset_opacity),
+        );
+    }
 }
 
 /// Run condition: the CPU stages run (no [`GpuTraining`] resource).
