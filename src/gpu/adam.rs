@@ -5,7 +5,7 @@ use bytemuck::{Pod, Zeroable};
 
 use super::kernel::{self, bind, dispatch, groups_for, storage};
 use super::{GpuContext, GpuError, GrowBuffer};
-use crate::systems::adam::{BETA1, BETA2, EPSILON};
+use crate::model::adam::{BETA1, BETA2, EPSILON};
 
 const ADAM_WGSL: &str = include_str!("../../shaders/adam.wgsl");
 

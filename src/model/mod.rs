@@ -1,10 +1,12 @@
 //! Pure per-Gaussian maths (SPEC §2–4): the temporal warp, the deformation at time t
 //! (motion, opacity, rotation, scale), spherical-harmonics colour and EWA projection, each
 //! with a hand-written backward pass checked against finite differences; and the per-camera
-//! exposure compensation applied to a whole render before the loss ([`exposure`]).
+//! exposure compensation applied to a whole render before the loss ([`exposure`]); and Adam's
+//! update rule ([`adam`]).
 //!
 //! The per-Gaussian maths is allocation-free and works on one Gaussian at a time.
 
+pub mod adam;
 pub mod deform;
 pub mod exposure;
 pub mod project;
