@@ -11,17 +11,16 @@
 //! Checked by hand to fail: `resident_gradients_in` not uploading the edited gradients (the
 //! frozen Gaussians move), and the edit checks comparing against the wrong tick (no error).
 
+#[path = "common/demo.rs"]
+mod demo;
 #[path = "common/gpu.rs"]
 mod gpu;
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
 use tadgs::components::*;
-use tadgs::data::synthetic::demo_scene;
 use tadgs::gpu::{GpuContext, GpuTraining};
-use tadgs::scene::{DataSource, SceneConfig};
 use tadgs::systems::resident::{HostGradients, resident_sync, sync_world};
 use tadgs::systems::{TrainSet, training_schedule};
 use tadgs::train::{insert_resources, spawn_initial_gaussians};
@@ -33,16 +32,9 @@ struct Tagged;
 /// A world of the demo scene at 64×48 over 4 frames (2 anchors × 300 random points, no
 /// densification) training on the GPU-resident pipeline of `gpu`, every fourth Gaussian tagged.
 fn gpu_world(gpu: &GpuContext) -> World {
-    let mut synthetic = demo_scene();
-    synthetic.frames = 4;
-    synthetic.width = 64;
-    synthetic.height = 48;
-    let mut config = SceneConfig::new("edits", DataSource::Synthetic(synthetic.clone()));
-    config.init.points_per_anchor = 300;
-    config.init.anchor_spacing = 3;
+    let (mut config, dataset) = demo::small_demo("edits", 4, 64, 48, 300);
     config.densify.from_iter = 100_000;
     config.densify.opacity_reset_interval = 0;
-    let dataset = Arc::new(synthetic.build().expect("small scene builds"));
     let mut world = World::new();
     insert_resources(&mut world, &config, dataset).expect("resources");
     world.insert_resource(GpuTraining::with_context(gpu.clone()));

@@ -23,6 +23,8 @@
 //! Checked by hand to fail: Adam's section offset ignored, the statistics reading the Opacity
 //! section instead of Temporal, the gradient check taking the maximum index (so never tripping).
 
+#[path = "common/demo.rs"]
+mod demo;
 #[path = "common/gpu.rs"]
 mod gpu;
 
@@ -33,24 +35,15 @@ use bevy_ecs::prelude::*;
 use bytemuck::Pod;
 use tadgs::components::*;
 use tadgs::data::Dataset;
-use tadgs::data::synthetic::demo_scene;
 use tadgs::gpu::{DeformSettings, GpuContext, GpuTraining, ResidentState};
 use tadgs::resources::{Settings, SplatBuffers, TrainState, ViewSample};
-use tadgs::scene::{DataSource, SceneConfig};
+use tadgs::scene::SceneConfig;
 use tadgs::systems::adam::{BETA1, BETA2};
 use tadgs::train::Trainer;
 
 /// The demo scene at 128×96 over 6 frames, 2 anchors × 1000 random points.
 fn small_scene() -> (SceneConfig, Arc<Dataset>) {
-    let mut synthetic = demo_scene();
-    synthetic.frames = 6;
-    synthetic.width = 128;
-    synthetic.height = 96;
-    let mut config = SceneConfig::new("pipeline", DataSource::Synthetic(synthetic.clone()));
-    config.init.points_per_anchor = 1000;
-    config.init.anchor_spacing = 3;
-    let dataset = Arc::new(synthetic.build().expect("small scene builds"));
-    (config, dataset)
+    demo::small_demo("pipeline", 6, 128, 96, 1000)
 }
 
 /// A CPU trainer and one whose world holds a `GpuTraining` on `gpu` (so the resident systems

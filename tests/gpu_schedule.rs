@@ -2,6 +2,8 @@
 //! (`GpuRasterizer`), give the CPU backend's render and parameter gradients, and `backend: Gpu`
 //! (the GPU-resident pipeline, `GpuTraining`) trains to the same quality as the CPU.
 
+#[path = "common/demo.rs"]
+mod demo;
 #[path = "common/gpu.rs"]
 mod gpu;
 
@@ -10,24 +12,15 @@ use std::sync::Arc;
 use bevy_ecs::prelude::*;
 use tadgs::components::*;
 use tadgs::data::Dataset;
-use tadgs::data::synthetic::demo_scene;
 use tadgs::gpu::GpuRasterizer;
 use tadgs::resources::{CameraExposures, SplatBuffers, TrainState, ViewSample};
-use tadgs::scene::{BackendKind, DataSource, SceneConfig};
+use tadgs::scene::{BackendKind, SceneConfig};
 use tadgs::systems::gradient_schedule;
 use tadgs::train::{Trainer, insert_resources, spawn_initial_gaussians};
 
 /// A small demo scene: 6 frames at 96×72 (6 × 5 tiles), 2 anchors × 400 random points.
 fn small_scene() -> (SceneConfig, Arc<Dataset>) {
-    let mut synthetic = demo_scene();
-    synthetic.frames = 6;
-    synthetic.width = 96;
-    synthetic.height = 72;
-    let mut config = SceneConfig::new("gpu", DataSource::Synthetic(synthetic.clone()));
-    config.init.points_per_anchor = 400;
-    config.init.anchor_spacing = 3;
-    let dataset = Arc::new(synthetic.build().expect("small scene builds"));
-    (config, dataset)
+    demo::small_demo("gpu", 6, 96, 72, 400)
 }
 
 /// A world of the small scene on `backend`, looking at training view 5 with SH degree 3.

@@ -1,6 +1,9 @@
 //! Steps the training schedule on a tiny synthetic scene: the loss goes down, and
 //! densification keeps every component and optimiser state consistent.
 
+#[path = "common/demo.rs"]
+mod demo;
+
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -16,15 +19,8 @@ use tadgs::train::{Trainer, insert_resources, spawn_initial_gaussians};
 
 /// A 6-frame, 48×36 version of the demo scene.
 fn tiny_scene() -> (SceneConfig, Arc<Dataset>) {
-    let mut synthetic = demo_scene();
-    synthetic.frames = 6;
-    synthetic.width = 48;
-    synthetic.height = 36;
-    let mut config = SceneConfig::new("tiny", DataSource::Synthetic(synthetic.clone()));
-    config.init.points_per_anchor = 300;
-    config.init.anchor_spacing = 3;
+    let (mut config, dataset) = demo::small_demo("tiny", 6, 48, 36, 300);
     config.train.iterations = 200;
-    let dataset = Arc::new(synthetic.build().expect("tiny scene builds"));
     (config, dataset)
 }
 
