@@ -17,6 +17,7 @@ use crate::model::sh::sh_to_rgb_backward;
 use crate::raster::SplatGrad;
 use crate::resources::{DeformedGrad, LossImage, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::systems::deform::DeformInputs;
+use crate::systems::densify::ndc_gradient_norm;
 
 /// Back-propagates the image gradient through blending and projection to each slot's deformed
 /// Gaussian, and records the NDC-space 2D mean gradient norm used by densification. Blending
@@ -40,19 +41,13 @@ pub fn backward_splats(
         ),
     }
 
-    // NDC spans the image over [−1, 1]: one pixel is 2/W (resp. 2/H) NDC units.
+    // The densification statistics' gradient sample, while the splat gradients are at hand.
     let half = glam::Vec2::new(0.5 * camera.width as f32, 0.5 * camera.height as f32);
     buffers
         .splats
         .par_iter()
         .zip(&buffers.splat_grads)
-        .map(|(s, g)| {
-            if s.visible {
-                (g.mean2d * half).length()
-            } else {
-                0.0
-            }
-        })
+        .map(|(s, g)| ndc_gradient_norm(s, g, half))
         .collect_into_vec(&mut buffers.ndc_grad_norm);
 
     buffers

@@ -4,7 +4,7 @@
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
-use glam::{Quat, Vec3};
+use glam::{Quat, Vec2, Vec3};
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::components::{
@@ -12,6 +12,7 @@ use crate::components::{
     each_param,
 };
 use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
+use crate::raster::{Splat, SplatGrad};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
 use crate::scene::{CapPolicy, DensifyConfig, TatForm};
 
@@ -23,6 +24,18 @@ pub const OPACITY_RESET: f32 = 0.01;
 pub const PRUNE_SCREEN_RADIUS: f32 = 20.0;
 /// `prune_big`: world scale limit as a fraction of the scene extent.
 pub const PRUNE_WORLD_SCALE: f32 = 0.1;
+
+/// The gradient sample of one splat in one view: the norm of dL/d(2D mean) in NDC units (the
+/// image spans [−1, 1], so one pixel is 2/W by 2/H; `half_size` is (W/2, H/2)); 0 when the
+/// splat was not visible. The GPU backward kernel (`shaders/param_backward.wgsl`) computes the
+/// same for `shaders/stats.wgsl`.
+pub fn ndc_gradient_norm(splat: &Splat, grad: &SplatGrad, half_size: Vec2) -> f32 {
+    if splat.visible {
+        (grad.mean2d * half_size).length()
+    } else {
+        0.0
+    }
+}
 
 /// Adds one view's gradient sample to the statistics.
 ///
