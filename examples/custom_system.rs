@@ -17,6 +17,9 @@
 //! ```
 
 mod common;
+#[cfg(test)]
+#[path = "../tests/common/gpu.rs"]
+mod gpu;
 
 use anyhow::Result;
 use bevy_ecs::prelude::*;
@@ -138,11 +141,7 @@ mod tests {
     /// adapter exists, a failure under `CI=true`.
     #[test]
     fn frozen_gaussians_stay_put_on_the_gpu_backend_too() {
-        if let Err(e) = tadgs::gpu::GpuContext::new(false) {
-            if std::env::var("CI").is_ok_and(|v| v == "true") {
-                panic!("{e}; CI=true requires a GPU adapter");
-            }
-            eprintln!("skipping: {e}");
+        if crate::gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(false)).is_none() {
             return;
         }
         let gpu = run(20, BackendKind::Gpu).expect("the example runs on the GPU");

@@ -417,7 +417,10 @@ pub fn resident_sync(world: &mut World, mut scratch: Local<SyncScratch>) -> Resu
     }
     macro_rules! scatter_every_group {
         ($($group:ty,)*) => {
-            $(scatter::<$group>(world, state, grads);)*
+            $(
+                scatter::<$group>(world, state);
+                scatter_gradient::<$group>(world, grads, state.len());
+            )*
         };
     }
     each_param!(scatter_every_group);
@@ -433,12 +436,12 @@ pub fn resident_sync(world: &mut World, mut scratch: Local<SyncScratch>) -> Resu
     Ok(())
 }
 
-/// Copies group `P`'s values, moments and gradient of every Gaussian that has the group out of
-/// its slot of `state` and `grads`.
-fn scatter<P: Param>(world: &mut World, state: &ResidentState, grads: &[f32]) {
+/// Copies group `P`'s values and moments of every Gaussian that has the group out of its slot
+/// of `state`.
+fn scatter<P: Param>(world: &mut World, state: &ResidentState) {
     let count = state.len();
-    for (mut value, mut adam, mut grad, slot) in world
-        .query::<(&mut P, &mut Adam<P>, &mut Grad<P>, &SplatSlot)>()
+    for (mut value, mut adam, slot) in world
+        .query::<(&mut P, &mut Adam<P>, &SplatSlot)>()
         .iter_mut(world)
     {
         let range = group_range::<P>(count, slot.0 as usize);
@@ -450,7 +453,6 @@ fn scatter<P: Param>(world: &mut World, state: &ResidentState, grads: &[f32]) {
             m: get(&state.m),
             v: get(&state.v),
         };
-        *grad = Grad(get(grads));
     }
 }
 
