@@ -73,7 +73,7 @@ struct Frame {
     view: vec4<f32>,
     // near plane (already ≥ NEAR_PLANE), minimum opacity 1/255, low-pass dilation 0.3, unused.
     cull: vec4<f32>,
-    // Asymmetric temporal opacity: w_min and the largest width 1.1; unused.
+    // Asymmetric temporal opacity: w_min and the largest width 1.1; 1 / the motion period; unused.
     temporal: vec4<f32>,
     count: u32,
     sh_degree: u32,
@@ -121,11 +121,12 @@ fn sin_cos(angle: f32) -> vec2<f32> {
     return vec2<f32>(sin(r), cos(r));
 }
 
-// Angle 2π(f + 1)·dtw + φ_f of frequency f (0-based), φ_f = phase[0] when shared.
+// Angle 2π(f + 1)·dtw/P + φ_f of frequency f (0-based), φ_f = phase[0] when shared, P the
+// motion period (MotionBasis::angle).
 fn fourier_angle(f: u32, dtw: f32, phase: vec4<f32>, shared_phase: bool) -> f32 {
     var ph = phase;
     let p = select(ph[f], ph[0], shared_phase);
-    return TAU * f32(f + 1u) * dtw + p;
+    return TAU * f32(f + 1u) * dtw * frame.temporal.z + p;
 }
 
 // Logistic sigmoid, stable for large |x| (src/model/deform.rs::sigmoid).

@@ -9,7 +9,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::data::{Camera, Dataset};
 use crate::metrics::loss::{LossScratch, LossValue};
-use crate::model::deform::TemporalOpacity;
+use crate::model::deform::{MotionBasis, TemporalOpacity};
 use crate::model::exposure::Exposure;
 use crate::model::warp::TimeWarp;
 use crate::raster::{Rasterizer, RenderOutput, Splat, SplatGrad};
@@ -70,9 +70,12 @@ impl Settings {
         }
     }
 
-    /// Whether the Fourier phase is shared by all frequencies (paper form).
-    pub fn shared_phase(&self) -> bool {
-        self.model.phase == PhaseModel::PerGaussian
+    /// How the Fourier motion reads time (phase layout and period).
+    pub fn motion_basis(&self) -> MotionBasis {
+        MotionBasis {
+            shared_phase: self.model.phase == PhaseModel::PerGaussian,
+            period: self.model.motion_period,
+        }
     }
 }
 

@@ -100,7 +100,7 @@ pub fn backward_parameters(
     buffers: Res<SplatBuffers>,
     mut gaussians: Query<(DeformInputs, &Deformed, &SplatSlot, ParamGrads)>,
 ) {
-    let shared_phase = settings.shared_phase();
+    let motion = settings.motion_basis();
     let opacity_model = settings.opacity;
     let scale_motion = settings.model.scale_motion;
     let sh_degree = state.sh_degree;
@@ -148,7 +148,7 @@ pub fn backward_parameters(
                 &fourier.cos,
                 &fourier.sin,
                 &fourier.phase,
-                shared_phase,
+                motion,
                 dtw,
                 d_mean,
             );

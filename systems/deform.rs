@@ -18,7 +18,7 @@ pub fn deform(
     sample: Res<ViewSample>,
     mut gaussians: Query<(DeformInputs, &mut Deformed)>,
 ) {
-    let shared_phase = settings.shared_phase();
+    let motion = settings.motion_basis();
     let opacity_model = settings.opacity;
     let scale_motion = settings.model.scale_motion;
     let sh_degree = state.sh_degree;
@@ -27,13 +27,7 @@ pub fn deform(
         |(((pos, fourier, temporal, opacity, rotation, scale, color, rest), warped), mut out)| {
             let dtw = warped.dtw;
             let mean = Vec3::from_array(pos.mean)
-                + fourier_offset(
-                    &fourier.cos,
-                    &fourier.sin,
-                    &fourier.phase,
-                    shared_phase,
-                    dtw,
-                );
+                + fourier_offset(&fourier.cos, &fourier.sin, &fourier.phase, motion, dtw);
             let scale_velocity = if scale_motion { scale.d1 } else { [0.0; 3] };
             *out = Deformed {
                 mean: mean.to_array(),

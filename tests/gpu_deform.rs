@@ -74,6 +74,8 @@ struct Case {
     sh_degree: u32,
     scale_motion: bool,
     shared_phase: bool,
+    /// `model.motion_period`.
+    motion_period: f32,
     near_plane: f32,
     /// Upload through `upload_components` (else `upload_params`).
     components: bool,
@@ -92,6 +94,7 @@ fn cases() -> Vec<Case> {
         sh_degree,
         scale_motion,
         shared_phase,
+        motion_period: 1.0,
         near_plane,
         components: gaussians % 2 == 0,
     };
@@ -105,6 +108,14 @@ fn cases() -> Vec<Case> {
         case(2001, narrow, 3, true, false, 0.01),
         case(900, narrow, 0, false, true, 0.3),
         case(1600, rbf, 3, false, false, 0.3),
+        Case {
+            motion_period: 2.0,
+            ..case(1100, rbf, 3, true, true, 0.01)
+        },
+        Case {
+            motion_period: 0.5,
+            ..case(800, narrow, 1, true, false, 0.01)
+        },
     ]
 }
 
@@ -264,6 +275,7 @@ fn run_cpu(
         } else {
             PhaseModel::PerFrequency
         };
+        settings.model.motion_period = case.motion_period;
         settings.model.scale_motion = case.scale_motion;
         settings.train.near_plane = case.near_plane;
     }

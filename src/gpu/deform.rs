@@ -33,7 +33,7 @@ use crate::components::{
     ShCoefficients, Temporal, WarpedTime,
 };
 use crate::data::Camera;
-use crate::model::deform::{ASYMMETRIC_MAX_WIDTH, TemporalOpacity};
+use crate::model::deform::{ASYMMETRIC_MAX_WIDTH, MotionBasis, TemporalOpacity};
 use crate::model::project::{FOV_CLAMP, LOW_PASS, MIN_OPACITY, NEAR_PLANE};
 use crate::raster::{Splat, SplatGrad};
 use crate::resources::{Settings, TrainState};
@@ -149,8 +149,8 @@ pub struct ParamGradients {
 /// The model options the kernels need, from the [`Settings`] and [`TrainState`] resources.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DeformSettings {
-    /// One Fourier phase per Gaussian (paper) rather than one per frequency.
-    pub shared_phase: bool,
+    /// How the Fourier motion reads time (phase layout and period).
+    pub motion: MotionBasis,
     /// The temporal opacity form.
     pub opacity: TemporalOpacity,
     /// Whether the log-scale velocity d1 is used (`model.scale_motion`).
@@ -165,7 +165,7 @@ impl DeformSettings {
     /// The options the CPU systems read from these resources.
     pub fn new(settings: &Settings, state: &TrainState) -> Self {
         Self {
-            shared_phase: settings.shared_phase(),
+            motion: settings.motion_basis(),
             opacity: settings.opacity,
             scale_motion: settings.model.scale_motion,
             sh_degree: state.sh_degree,
@@ -204,7 +204,8 @@ impl FrameUniform {
             TemporalOpacity::Rbf => (0, 0.0),
             TemporalOpacity::Asymmetric { w_min } => (1, w_min),
         };
-        let flags = u32::from(settings.shared_phase) | (u32::from(settings.scale_motion) << 1);
+        let flags =
+            u32::from(settings.motion.shared_phase) | (u32::from(settings.scale_motion) << 1);
         Self {
             rotation: [
                 w.x_axis.extend(0.0).to_array(),
@@ -221,7 +222,12 @@ impl FrameUniform {
                 LOW_PASS,
                 0.0,
             ],
-            temporal: [w_min, ASYMMETRIC_MAX_WIDTH, 0.0, 0.0],
+            temporal: [
+                w_min,
+                ASYMMETRIC_MAX_WIDTH,
+                1.0 / settings.motion.period,
+                0.0,
+            ],
             count,
             sh_degree: settings.sh_degree,
             flags,

@@ -381,7 +381,7 @@ impl SplatCloud {
 /// at least `min_opacity`. SH coefficients are kept as they are (the colour stays
 /// view-dependent). `settings` must be the model's (see [`Model::scene`]).
 pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32) -> SplatCloud {
-    let shared_phase = settings.shared_phase();
+    let motion = settings.motion_basis();
     let splats = model
         .gaussians
         .iter()
@@ -392,8 +392,8 @@ pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32)
                 return None;
             }
             let f = &g.fourier;
-            let mean = Vec3::from(g.position.mean)
-                + fourier_offset(&f.cos, &f.sin, &f.phase, shared_phase, dtw);
+            let mean =
+                Vec3::from(g.position.mean) + fourier_offset(&f.cos, &f.sin, &f.phase, motion, dtw);
             let velocity = if settings.model.scale_motion {
                 g.scale.d1
             } else {

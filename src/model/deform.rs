@@ -19,27 +19,51 @@ const LN_5: f32 = 1.609_438;
 /// Largest width w of the asymmetric temporal opacity (implementation form).
 pub const ASYMMETRIC_MAX_WIDTH: f32 = 1.1;
 
-/// Phase φ_f of frequency f (0-based index).
-#[inline]
-fn phase_of(phase: &[f32; FOURIER_TERMS], shared_phase: bool, f: usize) -> f32 {
-    if shared_phase { phase[0] } else { phase[f] }
+/// How the Fourier motion reads time: its phases and the period of its lowest frequency.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionBasis {
+    /// One phase φ shared by the K frequencies (paper) rather than one per frequency.
+    pub shared_phase: bool,
+    /// Period P of the lowest frequency in normalised time (paper: 1). With P = 1 a Gaussian
+    /// that lives the whole sequence (dtw spanning a unit interval) ends where it started;
+    /// P = 2 lets it end elsewhere.
+    pub period: f32,
 }
 
-/// Motion offset μ(t) − μ = Σ_{f=1..K} (M^c_f cos(2πf·dtw + φ_f) + M^s_f sin(2πf·dtw + φ_f)).
+impl MotionBasis {
+    /// The paper's basis: one phase per Gaussian, period 1.
+    pub const PAPER: Self = Self {
+        shared_phase: true,
+        period: 1.0,
+    };
+
+    /// Angle 2πf·dtw/P + φ_f of frequency f (0-based index), φ_f = `phase[0]` when shared.
+    #[inline]
+    fn angle(&self, phase: &[f32; FOURIER_TERMS], f: usize, dtw: f32) -> f32 {
+        let phi = if self.shared_phase {
+            phase[0]
+        } else {
+            phase[f]
+        };
+        TAU * (f + 1) as f32 * dtw / self.period + phi
+    }
+}
+
+/// Motion offset μ(t) − μ = Σ_{f=1..K} (M^c_f cos(2πf·dtw/P + φ_f) + M^s_f sin(2πf·dtw/P + φ_f)).
 ///
-/// φ_f = `phase[0]` for every f when `shared_phase` (paper: one phase per Gaussian), else
-/// `phase[f − 1]` (implementation: one per frequency).
+/// φ_f = `phase[0]` for every f with a shared phase (paper: one phase per Gaussian), else
+/// `phase[f − 1]` (implementation: one per frequency); P is the basis period (paper: 1).
 #[inline]
 pub fn fourier_offset(
     cos: &[[f32; 3]; FOURIER_TERMS],
     sin: &[[f32; 3]; FOURIER_TERMS],
     phase: &[f32; FOURIER_TERMS],
-    shared_phase: bool,
+    basis: MotionBasis,
     dtw: f32,
 ) -> Vec3 {
     let mut out = Vec3::ZERO;
     for f in 0..FOURIER_TERMS {
-        let angle = TAU * (f + 1) as f32 * dtw + phase_of(phase, shared_phase, f);
+        let angle = basis.angle(phase, f, dtw);
         let (s, c) = angle.sin_cos();
         out += Vec3::from(cos[f]) * c + Vec3::from(sin[f]) * s;
     }
@@ -63,19 +87,19 @@ pub fn fourier_offset_backward(
     cos: &[[f32; 3]; FOURIER_TERMS],
     sin: &[[f32; 3]; FOURIER_TERMS],
     phase: &[f32; FOURIER_TERMS],
-    shared_phase: bool,
+    basis: MotionBasis,
     dtw: f32,
     d_offset: Vec3,
 ) -> FourierGrad {
     let mut grad = FourierGrad::default();
     for f in 0..FOURIER_TERMS {
-        let angle = TAU * (f + 1) as f32 * dtw + phase_of(phase, shared_phase, f);
+        let angle = basis.angle(phase, f, dtw);
         let (s, c) = angle.sin_cos();
         grad.cos[f] = (d_offset * c).to_array();
         grad.sin[f] = (d_offset * s).to_array();
         // d/dangle (M^c cos + M^s sin) = −M^c sin + M^s cos.
         let d_angle = d_offset.dot(Vec3::from(sin[f]) * c - Vec3::from(cos[f]) * s);
-        grad.phase[if shared_phase { 0 } else { f }] += d_angle;
+        grad.phase[if basis.shared_phase { 0 } else { f }] += d_angle;
     }
     grad
 }
@@ -341,19 +365,56 @@ mod tests {
         sin[2] = [0.0, 2.0, 0.0];
         let phase = [0.3, 0.0, 0.0, 0.0];
         let dtw = 0.1;
-        let shared = fourier_offset(&cos, &sin, &phase, true, dtw);
+        let shared = fourier_offset(&cos, &sin, &phase, MotionBasis::PAPER, dtw);
         let expect_x = (TAU * 2.0 * dtw + 0.3).cos();
         let expect_y = 2.0 * (TAU * 3.0 * dtw + 0.3).sin();
         assert!((shared - Vec3::new(expect_x, expect_y, 0.0)).length() < 1e-6);
         // Per-frequency phases: only phase[f-1] shifts frequency f.
-        let per = fourier_offset(&cos, &sin, &phase, false, dtw);
+        let per_frequency = MotionBasis {
+            shared_phase: false,
+            period: 1.0,
+        };
+        let per = fourier_offset(&cos, &sin, &phase, per_frequency, dtw);
         let expect = Vec3::new((TAU * 2.0 * dtw).cos(), 2.0 * (TAU * 3.0 * dtw).sin(), 0.0);
         assert!((per - expect).length() < 1e-6);
+        // Period P: frequency f turns f/P times per unit of time.
+        let period_two = MotionBasis {
+            shared_phase: true,
+            period: 2.0,
+        };
+        let slow = fourier_offset(&cos, &sin, &phase, period_two, dtw);
+        let expect = Vec3::new(
+            (TAU * dtw + 0.3).cos(),
+            2.0 * (TAU * 1.5 * dtw + 0.3).sin(),
+            0.0,
+        );
+        assert!((slow - expect).length() < 1e-6);
         // Zero coefficients: no motion.
         assert_eq!(
-            fourier_offset(&[[0.0; 3]; 4], &[[0.0; 3]; 4], &phase, true, dtw),
+            fourier_offset(
+                &[[0.0; 3]; 4],
+                &[[0.0; 3]; 4],
+                &phase,
+                MotionBasis::PAPER,
+                dtw
+            ),
             Vec3::ZERO
         );
+    }
+
+    #[test]
+    fn motion_period_one_returns_to_the_start_and_two_does_not() {
+        let cos: [[f32; 3]; 4] = [[0.5, 0.0, 0.0]; 4];
+        let sin: [[f32; 3]; 4] = [[0.0, 0.25, 0.1]; 4];
+        let phase = [0.7, 0.0, 0.0, 0.0];
+        let at = |basis, dtw| fourier_offset(&cos, &sin, &phase, basis, dtw);
+        let paper = MotionBasis::PAPER;
+        assert!((at(paper, 0.0) - at(paper, 1.0)).length() < 1e-5);
+        let period_two = MotionBasis {
+            period: 2.0,
+            ..paper
+        };
+        assert!((at(period_two, 0.0) - at(period_two, 1.0)).length() > 0.1);
     }
 
     #[test]
@@ -365,10 +426,13 @@ mod tests {
             let phase: [f32; 4] = uniform(&mut rng, 3.0);
             let dtw = rng.random_range(-1.0..1.0);
             let d = Vec3::from(uniform::<3>(&mut rng, 1.0));
-            let shared = trial % 2 == 0;
-            let g = fourier_offset_backward(&cos, &sin, &phase, shared, dtw, d);
+            let basis = MotionBasis {
+                shared_phase: trial % 2 == 0,
+                period: [1.0, 2.0, 0.5][trial % 3],
+            };
+            let g = fourier_offset_backward(&cos, &sin, &phase, basis, dtw, d);
             let loss = |c: &[[f32; 3]; 4], s: &[[f32; 3]; 4], p: &[f32; 4]| {
-                d.dot(fourier_offset(c, s, p, shared, dtw))
+                d.dot(fourier_offset(c, s, p, basis, dtw))
             };
             let h = 1e-2;
             for f in 0..4 {
@@ -404,7 +468,7 @@ mod tests {
                     1e-2,
                 );
                 assert_grad("phase", g.phase[f], fd);
-                if shared && f > 0 {
+                if basis.shared_phase && f > 0 {
                     assert_eq!(g.phase[f], 0.0);
                 }
             }

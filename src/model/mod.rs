@@ -14,7 +14,7 @@ pub mod sh;
 pub mod warp;
 
 pub use deform::{
-    ASYMMETRIC_MAX_WIDTH, FOURIER_TERMS, FourierGrad, TemporalOpacity, fourier_offset,
+    ASYMMETRIC_MAX_WIDTH, FOURIER_TERMS, FourierGrad, MotionBasis, TemporalOpacity, fourier_offset,
     fourier_offset_backward, init_temporal_raw, lifespan_fraction, logit, rotation_at,
     rotation_at_backward, scale_at, scale_at_backward, sigmoid, temporal_opacity,
     temporal_opacity_backward,

@@ -238,7 +238,8 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 ///
 /// Checked: `train.iterations > 0`; `lambda_dssim` in [0, 1]; every learning rate finite
 /// and ≥ 0 (`sh_rest_divisor` > 0) with `position_final ≤ position`; background channels
-/// in [0, 1]; `near_plane > 0`; `model.sh_degree ≤ 3`; `tow.window_frames > 0`, `tow.rho` in (0, 1);
+/// in [0, 1]; `near_plane > 0`; `model.sh_degree ≤ 3`; `model.motion_period > 0`;
+/// `tow.window_frames > 0`, `tow.rho` in (0, 1);
 /// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
 /// `grad_threshold > 0`; `percent_dense > 0`; `interval > 0`; `from_iter ≤ until_iter`;
 /// `prune_opacity` in [0, 1); `vad_min_opacity` in [0, 1) if set; `max_gaussians ≥ 1`;
@@ -323,6 +324,7 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
     if m.sh_degree > 3 {
         return fail("model.sh_degree", format!("{} is above 3", m.sh_degree));
     }
+    positive("model.motion_period", m.motion_period)?;
     positive("model.tow.window_frames", m.tow.window_frames)?;
     in_range("model.tow.rho", m.tow.rho, 0.0, false, 1.0, false)?;
 

@@ -222,6 +222,10 @@ pub struct ModelConfig {
     pub opacity: OpacityModel,
     /// Whether the Fourier phase is per Gaussian or per frequency.
     pub phase: PhaseModel,
+    /// Period of the lowest Fourier frequency in normalised time (paper: 1). With 1, a
+    /// Gaussian that lives the whole sequence must end where it started; 2 lets it end
+    /// elsewhere (monocular scenes whose Gaussians live the whole sequence, e.g. D-NeRF).
+    pub motion_period: f32,
     /// Scale polynomial of degree 1 (paper); false keeps the scale constant (implementation).
     pub scale_motion: bool,
     /// Temporal Offset Warping.
@@ -234,6 +238,7 @@ impl Default for ModelConfig {
             sh_degree: 3,
             opacity: OpacityModel::Rbf,
             phase: PhaseModel::PerGaussian,
+            motion_period: 1.0,
             scale_motion: true,
             tow: TowConfig::default(),
         }
