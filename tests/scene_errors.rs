@@ -472,6 +472,31 @@ fn set_override_sets_nested_fields() {
     assert_eq!(c.train.lr, d.train.lr);
     assert_eq!(c.init, d.init);
     assert_eq!(c.densify.grad_threshold, d.densify.grad_threshold);
+
+    // Optional fields that default to None are overridable too.
+    set_override(
+        &mut c,
+        "init.background_lifespan_half_frames",
+        "Some(150.0)",
+    )
+    .unwrap();
+    assert_eq!(c.init.background_lifespan_half_frames, Some(150.0));
+    let mut panoptic = SceneConfig::new(
+        "p",
+        DataSource::Panoptic(tadgs::data::panoptic::PanopticSource {
+            path: "capture".into(),
+            frames: None,
+            frame_stride: 1,
+            foreground_masks: true,
+            downscale: 1,
+            validation_cameras: None,
+        }),
+    );
+    set_override(&mut panoptic, "data.validation_cameras", "Some([5, 22])").unwrap();
+    let DataSource::Panoptic(source) = &panoptic.data else {
+        panic!("the scene is a Panoptic capture");
+    };
+    assert_eq!(source.validation_cameras, Some(vec![5, 22]));
 }
 
 /// Property: an unknown key is rejected with an error naming the key (and, for a typo

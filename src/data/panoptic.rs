@@ -48,7 +48,7 @@ pub struct PanopticSource {
     /// evaluation set and the capture's own held-out cameras (`test_meta.json`) are not loaded
     /// at all. For choosing settings without looking at the held-out cameras; `None` (the
     /// default) is the standard split.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default)]
     pub validation_cameras: Option<Vec<u64>>,
 }
 

@@ -153,7 +153,6 @@ pub struct InitConfig {
     /// The same for the carved background points (outside the visual hull of the foreground
     /// masks: the static part of the scene), so they can live long enough to be trained by
     /// every frame's views instead of one anchor's share; `None` uses `lifespan_half_frames`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub background_lifespan_half_frames: Option<f32>,
 }
 
