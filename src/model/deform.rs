@@ -37,15 +37,16 @@ impl MotionBasis {
         period: 1.0,
     };
 
-    /// Angle 2πf·dtw/P + φ_f of frequency f (0-based index), φ_f = `phase[0]` when shared.
+    /// Index of the phase that frequency f (0-based) uses: 0 when shared, else f.
+    #[inline]
+    fn phase_slot(&self, f: usize) -> usize {
+        if self.shared_phase { 0 } else { f }
+    }
+
+    /// Angle 2πf·dtw/P + φ_f of frequency f (0-based index).
     #[inline]
     fn angle(&self, phase: &[f32; FOURIER_TERMS], f: usize, dtw: f32) -> f32 {
-        let phi = if self.shared_phase {
-            phase[0]
-        } else {
-            phase[f]
-        };
-        TAU * (f + 1) as f32 * dtw / self.period + phi
+        TAU * (f + 1) as f32 * dtw / self.period + phase[self.phase_slot(f)]
     }
 }
 
@@ -99,7 +100,7 @@ pub fn fourier_offset_backward(
         grad.sin[f] = (d_offset * s).to_array();
         // d/dangle (M^c cos + M^s sin) = −M^c sin + M^s cos.
         let d_angle = d_offset.dot(Vec3::from(sin[f]) * c - Vec3::from(cos[f]) * s);
-        grad.phase[if basis.shared_phase { 0 } else { f }] += d_angle;
+        grad.phase[basis.phase_slot(f)] += d_angle;
     }
     grad
 }
