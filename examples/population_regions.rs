@@ -44,7 +44,8 @@ enum Region {
 #[derive(Clone, Copy, Debug)]
 struct Classified {
     region: Region,
-    /// μ(t_i), where it was classified.
+    /// μ(t_i), where it was classified (the tests check the class against it).
+    #[cfg_attr(not(test), allow(dead_code))]
     mean: Vec3,
     lifespan: f32,
     opacity: f32,

@@ -270,7 +270,8 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>,
     write_grad3(i, PREFIX_SCALE, WIDTH_SCALE, 0u, d_s);
     write_grad3(i, PREFIX_SCALE, WIDTH_SCALE, 3u, select(vec3<f32>(0.0), d_s * dtw, scale_motion));
 
-    // Opacity (temporal_opacity_backward); the temporal centre is never optimised.
+    // Opacity (temporal_opacity_backward); the temporal centre is fixed on this backend
+    // (a learnt centre, `train.lr.temporal_center`, is refused by the scene check).
     let spatial = sigmoid(gs.logit);
     let tf = temporal_factor(gs.temporal_scale, dtw);
     let sigma = spatial * tf.factor;

@@ -40,7 +40,8 @@ pub struct Fourier {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct Temporal {
-    /// Temporal centre t_i in normalised time [0, 1] (an anchor frame); never optimised.
+    /// Temporal centre t_i in normalised time (an anchor frame); fixed unless
+    /// `train.lr.temporal_center` > 0 (CPU backend only).
     pub center: f32,
     /// Raw temporal scale: RBF: `[log ψ, unused]`; asymmetric: the left (Δt' < 0) and right
     /// (Δt' ≥ 0) log-widths s, w = min(w_min·exp(s), 1.1).

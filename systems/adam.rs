@@ -51,9 +51,9 @@ impl ParamGroup for Fourier {
 
 impl ParamGroup for Temporal {
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
-        // The temporal centre is fixed at initialisation.
+        // The temporal centre stays at its anchor unless its rate is set.
         Self {
-            center: 0.0,
+            center: lr.temporal_center,
             scale: [lr.temporal_scale; 2],
         }
     }

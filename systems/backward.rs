@@ -10,7 +10,8 @@ use crate::components::{
 };
 use crate::gpu::GpuRasterizer;
 use crate::model::deform::{
-    fourier_offset_backward, rotation_at_backward, scale_at_backward, temporal_opacity_backward,
+    centre_gradient, fourier_offset_backward, polynomial_dtw_backward, rotation_at_backward,
+    scale_at_backward, temporal_opacity_backward, temporal_opacity_dtw_backward,
 };
 use crate::model::project::project_backward;
 use crate::model::sh::sh_to_rgb_backward;
@@ -103,6 +104,8 @@ pub fn backward_parameters(
     let motion = settings.motion_basis();
     let opacity_model = settings.opacity;
     let scale_motion = settings.model.scale_motion;
+    let learn_centres = settings.train.lr.temporal_center > 0.0;
+    let warp = settings.warp;
     let sh_degree = state.sh_degree;
     let eye = sample.camera.center();
     gaussians
@@ -174,8 +177,23 @@ pub fn backward_parameters(
                 sin: f.sin,
                 phase: f.phase,
             };
+            // The centre's gradient only where it is learnt: as a constant it has none.
+            let center = if learn_centres {
+                let d_dtw = f.dtw
+                    + polynomial_dtw_backward(d_c0, rotation.c1, d_d0, scale_velocity)
+                    + temporal_opacity_dtw_backward(
+                        opacity_model,
+                        opacity.logit,
+                        temporal.scale,
+                        dtw,
+                        d.opacity,
+                    );
+                centre_gradient(d_dtw, &warp, warped.dt)
+            } else {
+                0.0
+            };
             g_temporal.0 = Temporal {
-                center: 0.0,
+                center,
                 scale: d_raw,
             };
             g_opacity.0 = Opacity { logit: d_logit };

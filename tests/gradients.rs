@@ -48,6 +48,8 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
     config.model.phase = phase;
     config.model.opacity = opacity_model;
     config.model.tow.window_frames = 4.0; // λ = 4/11: the view time lies outside some windows
+    // Learnt temporal centres, so that their gradient is computed and checked too.
+    config.train.lr.temporal_center = 1e-3;
     let mut world = World::new();
     insert_resources(&mut world, &config, Arc::new(dataset)).expect("CPU backend");
     world.resource_mut::<TrainState>().sh_degree = 3;
@@ -195,14 +197,14 @@ fn check_all(phase: PhaseModel, opacity: tadgs::scene::OpacityModel) {
     let mut checked = 0;
     checked += check_group::<Position>(&mut world, &mut render, H_POSITION, &[]);
     checked += check_group::<Fourier>(&mut world, &mut render, H_FOURIER, &[]);
-    checked += check_group::<Temporal>(&mut world, &mut render, H_TEMPORAL, &[0]);
+    checked += check_group::<Temporal>(&mut world, &mut render, H_TEMPORAL, &[]);
     checked += check_group::<Opacity>(&mut world, &mut render, H_OPACITY, &[]);
     checked += check_group::<Rotation>(&mut world, &mut render, H_ROTATION, &[]);
     checked += check_group::<Scale>(&mut world, &mut render, H_SCALE, &[]);
     checked += check_group::<Color>(&mut world, &mut render, H_COLOR, &[]);
     checked += check_group::<ColorRest>(&mut world, &mut render, H_COLOR, &[]);
-    // Every value but the temporal centre, which is fixed (never optimised, no gradient).
-    assert_eq!(checked, 4 * (3 + 28 + 2 + 1 + 8 + 6 + 48));
+    // Every value, the temporal centre included.
+    assert_eq!(checked, 4 * (3 + 28 + 3 + 1 + 8 + 6 + 48));
 }
 
 #[test]

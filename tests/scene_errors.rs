@@ -365,6 +365,14 @@ fn validate_names_each_bad_field() {
         ("init.background_lifespan_half_frames", |c| {
             c.init.background_lifespan_half_frames = Some(0.0)
         }),
+        ("train.lr.temporal_center", |c| {
+            c.train.lr.temporal_center = -1e-3
+        }),
+        // Learnt centres are refused on the GPU backend, which warps times with the CPU's.
+        ("train.lr.temporal_center", |c| {
+            c.train.lr.temporal_center = 1e-3;
+            c.train.backend = tadgs::scene::BackendKind::Gpu;
+        }),
     ];
     for (expected, edit) in cases {
         let mut c = minimal_config();

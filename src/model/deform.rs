@@ -1,8 +1,10 @@
 //! Deformation of a Gaussian at time t (SPEC §2): Fourier motion, temporal opacity,
 //! polynomial rotation and scale, with their backward passes.
 //!
-//! Every function takes the warped offset `dtw` = W(t − t_i) (see [`TimeWarp`]); it is an
-//! input, not a parameter (the temporal centre t_i is never optimised).
+//! Every function takes the warped offset `dtw` = W(t − t_i) (see [`TimeWarp`]). The paper
+//! keeps the temporal centre t_i fixed at its anchor frame; where it is learnt
+//! (`train.lr.temporal_center` > 0), its gradient is [`centre_gradient`] of the dL/d(dtw)
+//! that the backward functions below give beside their parameter gradients.
 
 use std::f32::consts::TAU;
 
@@ -80,6 +82,8 @@ pub struct FourierGrad {
     pub sin: [[f32; 3]; FOURIER_TERMS],
     /// dL/dφ (only `phase[0]` is non-zero with a shared phase).
     pub phase: [f32; FOURIER_TERMS],
+    /// dL/d(dtw) through the motion: Σ_f (2πf/P)·dL/dangle_f.
+    pub dtw: f32,
 }
 
 /// Backward of [`fourier_offset`] given `d_offset` = dL/d(offset).
@@ -101,6 +105,7 @@ pub fn fourier_offset_backward(
         // d/dangle (M^c cos + M^s sin) = −M^c sin + M^s cos.
         let d_angle = d_offset.dot(Vec3::from(sin[f]) * c - Vec3::from(cos[f]) * s);
         grad.phase[basis.phase_slot(f)] += d_angle;
+        grad.dtw += d_angle * TAU * (f + 1) as f32 / basis.period;
     }
     grad
 }
@@ -217,6 +222,41 @@ pub fn temporal_opacity_backward(
     let mut d_raw = [0.0; 2];
     d_raw[index] = d_sigma * sigma * d_exponent;
     (d_sigma * factor * spatial * (1.0 - spatial), d_raw)
+}
+
+/// dL/d(dtw) through the temporal opacity, given `d_sigma` = dL/dσ(t): σ(t)·d exponent/d dtw,
+/// with exponent −ψ·dtw² (Rbf) or −(dtw/w)² (asymmetric, w of the side dtw is on).
+#[inline]
+pub fn temporal_opacity_dtw_backward(
+    model: TemporalOpacity,
+    opacity_logit: f32,
+    temporal_raw: [f32; 2],
+    dtw: f32,
+    d_sigma: f32,
+) -> f32 {
+    let sigma = temporal_opacity(model, opacity_logit, temporal_raw, dtw);
+    let d_exponent = match model {
+        TemporalOpacity::Rbf => -2.0 * temporal_raw[0].exp() * dtw,
+        TemporalOpacity::Asymmetric { w_min } => {
+            let w = asymmetric_width(w_min, temporal_raw, dtw).1;
+            -2.0 * dtw / (w * w)
+        }
+    };
+    d_sigma * sigma * d_exponent
+}
+
+/// dL/d(dtw) through the rotation and scale polynomials c0 + c1·dtw and d0 + d1·dtw, given
+/// their gradients `d_c0` = dL/dc0 and `d_d0` = dL/dd0 (which equal dL/d of the polynomial).
+#[inline]
+pub fn polynomial_dtw_backward(d_c0: [f32; 4], c1: [f32; 4], d_d0: [f32; 3], d1: [f32; 3]) -> f32 {
+    dot4(d_c0, c1) + Vec3::from(d_d0).dot(Vec3::from(d1))
+}
+
+/// dL/dt_i of a temporal centre, given dL/d(dtw) and the unwarped offset dt = t − t_i:
+/// dtw = W(t − t_i), so d dtw/d t_i = −W'(dt).
+#[inline]
+pub fn centre_gradient(d_dtw: f32, warp: &TimeWarp, dt: f32) -> f32 {
+    -warp.slope(dt) * d_dtw
 }
 
 /// Normalised lifespan ψ̄ ∈ [0, 1] used by TAT.
@@ -473,6 +513,12 @@ mod tests {
                     assert_eq!(g.phase[f], 0.0);
                 }
             }
+            let fd = central(
+                |t| d.dot(fourier_offset(&cos, &sin, &phase, basis, t)),
+                dtw,
+                1e-3,
+            );
+            assert_grad("dtw", g.dtw, fd);
         }
     }
 
@@ -560,7 +606,50 @@ mod tests {
                     );
                     assert_grad("raw", g_raw[k], fd);
                 }
+                // Away from dtw = 0, where the asymmetric form switches sides.
+                if dtw.abs() > 2.0 * h {
+                    let g_dtw = temporal_opacity_dtw_backward(model, logit_v, raw, dtw, d_sigma);
+                    let fd = central(
+                        |t| d_sigma * temporal_opacity(model, logit_v, raw, t),
+                        dtw,
+                        1e-3,
+                    );
+                    assert_grad("dtw", g_dtw, fd);
+                }
             }
+        }
+    }
+
+    /// The dtw gradients of the rotation and scale polynomials and the chain through the warp
+    /// to the temporal centre match finite differences of a loss of the deformed rotation and
+    /// scale: L = d_q·rotation_at(c0, c1, W(t − t_i)) + d_s·scale_at(d0, d1, W(t − t_i)).
+    #[test]
+    fn centre_gradient_matches_fd() {
+        let mut rng = rng();
+        let warp = TimeWarp::tow(20.0, 100, 0.75);
+        for _ in 0..16 {
+            let c0: [f32; 4] = uniform(&mut rng, 1.0);
+            let c1: [f32; 4] = uniform(&mut rng, 1.0);
+            let d0: [f32; 3] = uniform(&mut rng, 1.0);
+            let d1: [f32; 3] = uniform(&mut rng, 1.0);
+            let d_q: [f32; 4] = uniform(&mut rng, 1.0);
+            let d_s = Vec3::from(uniform::<3>(&mut rng, 1.0));
+            let (t, centre): (f32, f32) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
+            // Stay away from the warp's kinks at |t − t_i| = λ/2.
+            let lambda = 0.2f32;
+            if ((t - centre).abs() - 0.5 * lambda).abs() < 1e-2 {
+                continue;
+            }
+            let loss = |c: f32| {
+                let dtw = warp.apply(t - c);
+                dot4(d_q, rotation_at(c0, c1, dtw)) + d_s.dot(scale_at(d0, d1, dtw))
+            };
+            let dtw = warp.apply(t - centre);
+            let (d_c0, _) = rotation_at_backward(c0, c1, dtw, d_q);
+            let (d_d0, _) = scale_at_backward(d0, d1, dtw, d_s);
+            let d_dtw = polynomial_dtw_backward(d_c0, c1, d_d0, d1);
+            let g = centre_gradient(d_dtw, &warp, t - centre);
+            assert_grad("centre", g, central(loss, centre, 1e-3));
         }
     }
 

@@ -30,7 +30,7 @@ use ron::extensions::Extensions;
 
 use super::field_error::{Check, FieldError, fail};
 use super::outline::{self, locate_field};
-use super::types::{CapPolicy, DataSource, SceneConfig, TatForm};
+use super::types::{BackendKind, CapPolicy, DataSource, SceneConfig, TatForm};
 
 /// Everything that can go wrong while loading a scene file or applying an override.
 #[derive(Debug, thiserror::Error)]
@@ -239,7 +239,8 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 /// Checked: `train.iterations > 0`; `lambda_dssim` in [0, 1]; every learning rate finite
 /// and ≥ 0 (`sh_rest_divisor` > 0) with `position_final ≤ position`; background channels
 /// in [0, 1]; `near_plane > 0`; `model.sh_degree ≤ 3`; `model.motion_period > 0`;
-/// `tow.window_frames > 0`, `tow.rho` in (0, 1);
+/// `tow.window_frames > 0`, `tow.rho` in (0, 1); `train.lr.temporal_center` 0 with the GPU
+/// backend;
 /// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
 /// `grad_threshold > 0`; `percent_dense > 0`; `interval > 0`; `from_iter ≤ until_iter`;
 /// `prune_opacity` in [0, 1); `vad_min_opacity` in [0, 1) if set; `max_gaussians ≥ 1`;
@@ -289,6 +290,7 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
         ("fourier_cos_sin", lr.fourier_cos_sin),
         ("fourier_phase", lr.fourier_phase),
         ("temporal_scale", lr.temporal_scale),
+        ("temporal_center", lr.temporal_center),
         ("opacity", lr.opacity),
         ("rotation", lr.rotation),
         ("rotation_velocity", lr.rotation_velocity),
@@ -309,6 +311,16 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
         in_range(&format!("train.lr.{name}"), v, 0.0, true, most, true)?;
     }
     positive("train.lr.sh_rest_divisor", lr.sh_rest_divisor)?;
+    if lr.temporal_center > 0.0 && t.backend == BackendKind::Gpu {
+        return fail(
+            "train.lr.temporal_center",
+            format!(
+                "is {}, but learnt temporal centres need `train.backend: Cpu`: the GPU backend \
+                 warps each view's times with the centres the CPU holds",
+                lr.temporal_center
+            ),
+        );
+    }
     if lr.position_final > lr.position {
         return fail(
             "train.lr.position_final",

@@ -357,6 +357,10 @@ pub struct LearningRates {
     /// Temporal scale (raw values: log ψ for the RBF opacity, the left/right width
     /// parameters s of the asymmetric form).
     pub temporal_scale: f32,
+    /// Temporal centre t_i, in normalised time. 0 keeps every centre at its anchor frame
+    /// (the paper and the authors' code); above 0 the centres are learnt, so that Gaussians
+    /// can drift in time towards the frames between anchors (CPU backend only).
+    pub temporal_center: f32,
     /// Spatial opacity σ^s, on its logit.
     pub opacity: f32,
     /// Rotation quaternion constant term c_0.
@@ -383,6 +387,7 @@ impl Default for LearningRates {
             fourier_cos_sin: 0.35,
             fourier_phase: 0.07,
             temporal_scale: 0.01,
+            temporal_center: 0.0,
             opacity: 0.05,
             rotation: 1e-3,
             rotation_velocity: 1e-4,
