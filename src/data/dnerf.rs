@@ -236,7 +236,7 @@ fn read_transforms(root: &Path, split: &str) -> Result<(f64, Vec<Frame>), DataEr
 
 /// The image of a `file_path` entry: relative to the scene folder, `.png` added when the
 /// entry has no extension (as in the D-NeRF files).
-fn image_path(root: &Path, file_path: &str) -> PathBuf {
+pub(crate) fn image_path(root: &Path, file_path: &str) -> PathBuf {
     let relative = file_path.strip_prefix("./").unwrap_or(file_path);
     let path = root.join(relative);
     if path.extension().is_some() {
@@ -264,7 +264,7 @@ pub(crate) fn blender_to_opencv_w2c(camera_to_world: DMat4) -> DMat4 {
 
 /// Box-filters the RGBA image by `factor` (straight alpha, as D-NeRF's area resize does),
 /// composites it over `background` and returns the 8-bit RGB image and the alpha > 0.5 mask.
-fn composite_downscaled(
+pub(crate) fn composite_downscaled(
     rgba: &image::RgbaImage,
     factor: u32,
     background: [f32; 3],

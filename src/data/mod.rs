@@ -5,6 +5,7 @@ pub mod colmap;
 pub mod dnerf;
 pub mod error;
 pub mod n3dv;
+pub mod nerfstudio;
 pub mod panoptic;
 pub mod pointcloud;
 pub mod synthetic;
@@ -191,6 +192,7 @@ pub fn load(source: &crate::scene::DataSource) -> Result<Dataset, DataError> {
         DataSource::Panoptic(source) => (panoptic::load(source)?, source.path.as_str()),
         DataSource::DNerf(source) => (dnerf::load(source)?, source.path.as_str()),
         DataSource::N3dv(source) => (n3dv::load(source)?, source.path.as_str()),
+        DataSource::Nerfstudio(source) => (nerfstudio::load(source)?, source.path.as_str()),
     };
     check_camera_positions(&dataset.cameras)
         .map_err(|message| DataError::dataset(std::path::Path::new(path), message))?;

@@ -411,6 +411,7 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
         DataSource::Panoptic(p) => p.check().map_err(|e| e.within("data")),
         DataSource::N3dv(n) => n.check().map_err(|e| e.within("data")),
         DataSource::DNerf(d) => d.check().map_err(|e| e.within("data")),
+        DataSource::Nerfstudio(n) => n.check().map_err(|e| e.within("data")),
     }
 }
 

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::data::dnerf::DNerfSource;
 use crate::data::n3dv::N3dvSource;
+use crate::data::nerfstudio::NerfstudioSource;
 use crate::data::panoptic::PanopticSource;
 use crate::data::synthetic::SyntheticScene;
 use crate::init::carve::CarveSettings;
@@ -88,6 +89,9 @@ pub enum DataSource {
     DNerf(DNerfSource),
     /// An N3DV / LLFF multi-view video (poses_bounds.npy + camXX.mp4 or frame folders).
     N3dv(N3dvSource),
+    /// A nerfstudio capture (transforms.json with pinhole intrinsics, optional per-frame time,
+    /// optional ply_file_path).
+    Nerfstudio(NerfstudioSource),
 }
 
 impl SceneConfig {
@@ -99,6 +103,7 @@ impl SceneConfig {
             DataSource::Panoptic(source) => paths.push(&mut source.path),
             DataSource::DNerf(source) => paths.push(&mut source.path),
             DataSource::N3dv(source) => paths.push(&mut source.path),
+            DataSource::Nerfstudio(source) => paths.push(&mut source.path),
         }
         if let InitMethod::PointCloud(path) = &mut self.init.method {
             paths.push(path);
