@@ -22,7 +22,7 @@ use crate::io::image::Image;
 use crate::model::deform::{FOURIER_TERMS, logit};
 use crate::model::sh::rgb_to_sh_dc;
 use crate::raster::PairCounts;
-use crate::resources::{LossImage, SplatBuffers, ViewSample};
+use crate::resources::{LossImage, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::scene::{BackendKind, DataSource, SceneConfig};
 use crate::systems::{adam, backward, deform, loss, render_schedule, resident, sample_view, splat};
 use crate::systems::{time_warp, training_schedule};
@@ -163,9 +163,15 @@ pub struct StageTime {
 /// What [`run`] measured.
 #[derive(Clone, Debug)]
 pub struct BenchReport {
-    /// Number of Gaussians in the benchmark world.
+    /// What was timed: the synthetic bench scene, or a scene's name.
+    pub label: String,
+    /// The training iteration the world was at when timing began.
+    pub iteration: u32,
+    /// The SH degree in use.
+    pub sh_degree: u32,
+    /// Number of Gaussians in the world.
     pub gaussians: usize,
-    /// Image width in pixels.
+    /// Width in pixels of the last view trained on.
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
@@ -325,11 +331,13 @@ fn time_cpu_stages(world: &mut World, adam_only: &mut Schedule, samples: &mut Sa
     samples.stage(world, "adam", |w| adam_only.run(w));
     let camera = world.resource::<ViewSample>().camera;
     let (w, h) = (camera.width as usize, camera.height as usize);
+    let train = &world.resource::<Settings>().train;
+    let (near_plane, background) = (train.near_plane, train.background);
     let mut buffers = world.resource_mut::<SplatBuffers>();
     let b = &mut *buffers;
     samples.record(
         "  project",
-        time_ms(|| splat::project_all(&b.deformed, &camera, 0.01, &mut b.splats)),
+        time_ms(|| splat::project_all(&b.deformed, &camera, near_plane, &mut b.splats)),
     );
     samples.record(
         "  bin + depth sort",
@@ -337,7 +345,7 @@ fn time_cpu_stages(world: &mut World, adam_only: &mut Schedule, samples: &mut Sa
     );
     samples.record(
         "  blend",
-        time_ms(|| b.rasterizer.blend(w, h, [0.0; 3], &mut b.render)),
+        time_ms(|| b.rasterizer.blend(w, h, background, &mut b.render)),
     );
     let d_color = std::mem::take(&mut world.resource_mut::<LossImage>().d_color);
     let mut buffers = world.resource_mut::<SplatBuffers>();
@@ -385,8 +393,23 @@ pub fn run(
     repeats: usize,
     backend: BackendKind,
 ) -> Result<BenchReport, GpuError> {
+    let world = benchmark_world_on(n, width, height, false, backend)?;
+    time_world(world, "synthetic bench scene", repeats)
+}
+
+/// Times the stages of a training iteration of `world` (a training world as
+/// [`crate::train::Trainer`] builds it: a real scene's images, population, SH degree and
+/// iteration), as [`run`] does for the benchmark scene. Densification and opacity resets are
+/// switched off first so that every repeat times the same population.
+pub fn time_world(mut world: World, label: &str, repeats: usize) -> Result<BenchReport, GpuError> {
     let repeats = repeats.max(1);
-    let mut world = benchmark_world_on(n, width, height, false, backend)?;
+    {
+        let mut settings = world.resource_mut::<Settings>();
+        settings.densify.until_iter = 0;
+        settings.densify.opacity_reset_interval = 0;
+    }
+    let backend = world.resource::<Settings>().train.backend;
+    let iteration = world.resource::<TrainState>().iteration;
     let mut train = training_schedule();
     let mut adam_only = Schedule::default();
     adam_only.add_systems(adam::adam_systems());
@@ -404,6 +427,8 @@ pub fn run(
     for _ in 0..repeats {
         samples.record("training iteration", time_ms(|| train.run(&mut world)));
     }
+    let camera = world.resource::<ViewSample>().camera;
+    let (width, height) = (camera.width, camera.height);
     let mut render = render_schedule();
     render.run(&mut world);
     for r in 0..repeats {
@@ -423,9 +448,14 @@ pub fn run(
             (None, Some(visible), tile_pairs, Some(pairs))
         }
     };
+    let gaussians = world.query::<&Position>().iter(&world).count();
+    let sh_degree = world.resource::<TrainState>().sh_degree;
     let scratch = scratch_bytes(world.resource::<SplatBuffers>());
     Ok(BenchReport {
-        gaussians: n,
+        label: label.to_string(),
+        iteration,
+        sh_degree,
+        gaussians,
         width,
         height,
         backend,
@@ -434,13 +464,8 @@ pub fn run(
         intersections,
         pairs,
         stages: samples.medians(),
-        component_bytes: gaussian_bytes(
-            world
-                .resource::<crate::resources::Settings>()
-                .model
-                .sh_degree,
-        ),
-        scratch_bytes: scratch as f64 / n as f64,
+        component_bytes: gaussian_bytes(world.resource::<Settings>().model.sh_degree),
+        scratch_bytes: scratch as f64 / gaussians.max(1) as f64,
     })
 }
 
@@ -463,8 +488,16 @@ impl BenchReport {
             None => String::new(),
         };
         out += &format!(
-            "\n{} × {}, {} Gaussians{visible}, {} tile-splat pairs, {:?} backend\n",
-            self.width, self.height, self.gaussians, self.intersections, self.backend
+            "\n{} × {}, {} Gaussians{visible}, {} tile-splat pairs, {:?} backend\n\
+             {} at iteration {}, SH degree {} (densification paused while timing)\n",
+            self.width,
+            self.height,
+            self.gaussians,
+            self.intersections,
+            self.backend,
+            self.label,
+            self.iteration,
+            self.sh_degree
         );
         if let Some(device) = &self.device {
             out += &format!("GPU: {device}\n");
@@ -505,57 +538,4 @@ impl BenchReport {
             ns_per(backward, pairs.blended),
         )
     }
-}
-
-/// Options of `tadgs bench`.
-#[derive(clap::Args, Clone, Debug)]
-pub struct BenchArgs {
-    /// Number of Gaussians (one or more, comma-separated).
-    #[arg(long, value_delimiter = ',', default_value = "100000")]
-    pub gaussians: Vec<usize>,
-    /// Image sizes as WxH (one or more, comma-separated).
-    #[arg(long, value_delimiter = ',', default_value = "640x360")]
-    pub size: Vec<String>,
-    /// Runs per stage; the median is reported.
-    #[arg(long, default_value_t = 5)]
-    pub repeats: usize,
-    /// Backend: cpu, or gpu (the GPU-resident iteration of `backend: Gpu`, each stage timed
-    /// until the device has finished it).
-    #[arg(long, value_parser = ["cpu", "gpu"], default_value = "cpu")]
-    pub backend: String,
-}
-
-/// `tadgs bench`: prints one table per (Gaussians, size) pair.
-pub fn cli(args: &BenchArgs) -> anyhow::Result<()> {
-    let sizes = args
-        .size
-        .iter()
-        .map(|s| {
-            let (w, h) = s
-                .split_once('x')
-                .ok_or_else(|| anyhow::anyhow!("--size {s}: expected WxH, e.g. 640x360"))?;
-            let parse = |v: &str| {
-                v.parse::<u32>()
-                    .ok()
-                    .filter(|&v| v > 0)
-                    .ok_or_else(|| anyhow::anyhow!("--size {s}: {v} is not a positive integer"))
-            };
-            Ok((parse(w)?, parse(h)?))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let backend = match args.backend.as_str() {
-        "gpu" => BackendKind::Gpu,
-        _ => BackendKind::Cpu,
-    };
-    println!(
-        "CPU: {} threads, SIMD level: {}",
-        rayon::current_num_threads(),
-        crate::raster::simd_level().name()
-    );
-    for &n in &args.gaussians {
-        for &(w, h) in &sizes {
-            println!("\n{}", run(n, w, h, args.repeats, backend)?.table());
-        }
-    }
-    Ok(())
 }

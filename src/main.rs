@@ -46,8 +46,9 @@ enum Command {
     /// Describe a scene file (resolved settings), a run folder, a model, a splat PLY or a
     /// checkpoint.
     Info(cli::info::InfoCommand),
-    /// Time every stage of a training iteration on the fixed benchmark scene and print a table.
-    Bench(tadgs::bench::BenchArgs),
+    /// Time every stage of a training iteration and print a table: on the fixed benchmark
+    /// scene, or on a real scene (--scene) or run (--checkpoint) at its own size.
+    Bench(cli::bench::BenchArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -116,7 +117,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(args) => cli::export::export(args, ui),
         Command::Masks(args) => cli::eval::masks(args, ui),
         Command::Info(args) => cli::info::info(args),
-        Command::Bench(args) => tadgs::bench::cli(&args),
+        Command::Bench(args) => cli::bench::bench(&args),
     }
 }
 

@@ -1,5 +1,7 @@
 //! `tadgs bench` prints one stage table per requested (Gaussians, size) pair, on the CPU or the
-//! GPU backend, and rejects a malformed size with one clear line.
+//! GPU backend, and rejects a malformed size with one clear line; with `--scene` or
+//! `--checkpoint` it times a real scene's iteration at its own population, SH degree and
+//! iteration.
 
 use std::process::Command;
 
@@ -84,5 +86,82 @@ fn bench_times_the_gpu_resident_stages() {
     assert!(
         text.contains("Gpu backend") && text.contains("GPU: "),
         "{text}"
+    );
+}
+
+fn demo_scene() -> String {
+    format!("{}/scenes/demo.ron", env!("CARGO_MANIFEST_DIR"))
+}
+
+/// `--scene` times the scene's own initial population (the demo over 6 frames: anchors at
+/// frames 0 and 5, 1 000 points each) at iteration 0 and SH degree 0.
+#[test]
+fn bench_times_a_scene_at_its_initial_population() {
+    let scene = demo_scene();
+    let text = bench(&[
+        "--scene",
+        &scene,
+        "--set",
+        "data.frames=6",
+        "--repeats",
+        "1",
+    ]);
+    for stage in [
+        "deform",
+        "  blend",
+        "training iteration",
+        "render at a new time",
+    ] {
+        assert!(
+            text.lines().any(|l| l.starts_with(&format!("{stage} "))),
+            "stage {stage:?} in:\n{text}"
+        );
+    }
+    assert!(text.contains("160 × 120, 2000 Gaussians"), "{text}");
+    assert!(
+        text.contains("scene `demo`, initial population at iteration 0, SH degree 0"),
+        "{text}"
+    );
+}
+
+/// `--checkpoint` times the run where it stopped: its iteration and its SH degree, raised by
+/// the schedule from 0 (every 100 iterations here).
+#[test]
+fn bench_times_a_checkpoint_where_the_run_stopped() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args(["-q", "train", &demo_scene(), "--set", "data.frames=6"])
+        .args([
+            "--set",
+            "train.sh_increase_interval=100",
+            "--iterations",
+            "300",
+        ])
+        .args(["--until", "250", "--output"])
+        .arg(&run)
+        .output()
+        .expect("the tadgs binary runs");
+    assert!(
+        out.status.code() == Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = bench(&["--checkpoint", run.to_str().unwrap(), "--repeats", "1"]);
+    assert!(text.contains("at iteration 250, SH degree 2"), "{text}");
+}
+
+/// `--set` without a scene to apply it to is refused with one line.
+#[test]
+fn bench_set_needs_a_scene() {
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args(["bench", "--set", "train.seed=1"])
+        .output()
+        .expect("the tadgs binary runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("give --scene FILE.ron or --checkpoint DIR"),
+        "{err}"
     );
 }

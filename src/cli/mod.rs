@@ -1,6 +1,7 @@
 //! The command implementations behind `src/main.rs`: one module per command, shared helpers
 //! here.
 
+pub mod bench;
 pub mod eval;
 pub mod export;
 pub mod info;

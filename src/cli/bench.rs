@@ -1,0 +1,123 @@
+//! `tadgs bench`: the stage table of a training iteration, on the fixed benchmark scene or on a
+//! real scene (its images, its population and SH degree, from initialisation or a checkpoint).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Result, bail};
+use tadgs::bench::{BenchReport, run, time_world};
+use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
+use tadgs::scene::{BackendKind, apply_overrides, set_override};
+use tadgs::train::Trainer;
+
+use super::{load_dataset, load_with_overrides};
+
+/// Options of `tadgs bench`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct BenchArgs {
+    /// Number of Gaussians of the benchmark scene (one or more, comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "100000")]
+    pub gaussians: Vec<usize>,
+    /// Image sizes of the benchmark scene as WxH (one or more, comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "640x360")]
+    pub size: Vec<String>,
+    /// Time a real scene instead: its training views, its initial population and the SH
+    /// degree and view size its schedule gives at iteration 0.
+    #[arg(long, value_name = "FILE.ron", conflicts_with = "checkpoint")]
+    pub scene: Option<PathBuf>,
+    /// Time a run where its checkpoint left it (DIR: the run folder or its checkpoint/ folder):
+    /// its population, SH degree, exposure corrections and iteration, so the view size is
+    /// the one its schedule had reached.
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint: Option<PathBuf>,
+    /// With --scene or --checkpoint: override a scene setting, as for `train`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// Runs per stage; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    pub repeats: usize,
+    /// Backend: cpu, or gpu (the GPU-resident iteration of `backend: Gpu`, each stage timed
+    /// until the device has finished it).
+    #[arg(long, value_parser = ["cpu", "gpu"], default_value = "cpu")]
+    pub backend: String,
+}
+
+/// `tadgs bench`: one table per (Gaussians, size) pair of the benchmark scene, or one for the
+/// scene or checkpoint given.
+pub fn bench(args: &BenchArgs) -> Result<()> {
+    let backend = match args.backend.as_str() {
+        "gpu" => BackendKind::Gpu,
+        _ => BackendKind::Cpu,
+    };
+    if !args.overrides.is_empty() && args.scene.is_none() && args.checkpoint.is_none() {
+        bail!("--set changes a scene's settings: give --scene FILE.ron or --checkpoint DIR");
+    }
+    println!(
+        "CPU: {} threads, SIMD level: {}",
+        rayon::current_num_threads(),
+        tadgs::raster::simd_level().name()
+    );
+    if args.scene.is_some() || args.checkpoint.is_some() {
+        println!("\n{}", real_scene(args, backend)?.table());
+        return Ok(());
+    }
+    let sizes = args
+        .size
+        .iter()
+        .map(|s| parse_size(s))
+        .collect::<Result<Vec<_>>>()?;
+    for &n in &args.gaussians {
+        for &(w, h) in &sizes {
+            println!("\n{}", run(n, w, h, args.repeats, backend)?.table());
+        }
+    }
+    Ok(())
+}
+
+/// A `WxH` image size.
+fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| anyhow::anyhow!("--size {s}: expected WxH, e.g. 640x360"))?;
+    let parse = |v: &str| {
+        v.parse::<u32>()
+            .ok()
+            .filter(|&v| v > 0)
+            .ok_or_else(|| anyhow::anyhow!("--size {s}: {v} is not a positive integer"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
+/// Times the scene file or checkpoint of `args`.
+fn real_scene(args: &BenchArgs, backend: BackendKind) -> Result<BenchReport> {
+    let backend_name = if backend == BackendKind::Gpu {
+        "Gpu"
+    } else {
+        "Cpu"
+    };
+    let (trainer, label) = match (&args.scene, &args.checkpoint) {
+        (Some(path), _) => {
+            let mut config = load_with_overrides(path, &args.overrides)?;
+            set_override(&mut config, "train.backend", backend_name)?;
+            let dataset = Arc::new(load_dataset(&config)?);
+            let label = format!("scene `{}`, initial population", config.name);
+            (Trainer::try_new(&config, dataset)?, label)
+        }
+        (None, Some(dir)) => {
+            let folder = if dir.join(STATE_FILE).is_file() {
+                dir.clone()
+            } else {
+                dir.join("checkpoint")
+            };
+            let mut checkpoint = Checkpoint::load(&folder)?;
+            let config = &mut checkpoint.state.scene;
+            apply_overrides(config, &args.overrides)?;
+            set_override(config, "train.backend", backend_name)?;
+            let dataset = Arc::new(load_dataset(config)?);
+            let label = format!("scene `{}`, checkpoint {}", config.name, folder.display());
+            (Trainer::from_checkpoint(&checkpoint, dataset)?, label)
+        }
+        (None, None) => unreachable!("called with --scene or --checkpoint"),
+    };
+    Ok(time_world(trainer.world, &label, args.repeats)?)
+}
