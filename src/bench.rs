@@ -203,6 +203,7 @@ fn scratch_bytes(b: &SplatBuffers) -> usize {
         + bytes(&b.splat_grads)
         + bytes(&b.deformed_grads)
         + bytes(&b.ndc_grad_norm)
+        + bytes(&b.gradient_reached)
         + bytes(&b.render.image.data)
         + bytes(&b.render.alpha)
         + b.rasterizer.heap_bytes()

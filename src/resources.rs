@@ -227,6 +227,9 @@ pub struct SplatBuffers {
     pub splat_grads: Vec<SplatGrad>,
     /// Gradients with respect to each deformed Gaussian (zero for splats not drawn).
     pub deformed_grads: Vec<DeformedGrad>,
+    /// Whether any gradient reached each slot (its deformed gradient is not zero): what
+    /// `train.visible_adam` steps.
+    pub gradient_reached: Vec<bool>,
     /// ‖∂L/∂μ2D‖ in NDC units per slot (0 for splats not drawn).
     pub ndc_grad_norm: Vec<f32>,
 }

@@ -5,12 +5,12 @@ use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::{
-    Adam, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, Temporal,
-    each_param,
+    Adam, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, SplatSlot,
+    Temporal, each_param,
 };
 use crate::model::exposure::Exposure;
 use crate::model::sh::{SH_COEFFS, coeff_count};
-use crate::resources::{CameraExposures, Settings, TrainState};
+use crate::resources::{CameraExposures, Settings, SplatBuffers, TrainState};
 use crate::scene::LearningRates;
 
 pub use crate::model::adam::{BETA1, BETA2, EPSILON};
@@ -110,10 +110,13 @@ pub fn position_lr(lr: &LearningRates, iteration: u32, iterations: u32, extent: 
 }
 
 /// One Adam step on every Gaussian's `P`, with bias correction for the global step.
+/// With `train.visible_adam`, Gaussians that received no gradient (see
+/// [`crate::systems::backward::backward_parameters`]) are left as they are.
 pub fn adam_step<P: ParamGroup>(
     settings: Res<Settings>,
     state: Res<TrainState>,
-    mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>)>,
+    buffers: Res<SplatBuffers>,
+    mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>, &SplatSlot)>,
 ) {
     let lr = &settings.train.lr;
     let rates = P::learning_rates(
@@ -127,9 +130,19 @@ pub fn adam_step<P: ParamGroup>(
     );
     let bias = BiasCorrection::after(state.iteration.max(1) as i32);
     let active = P::active_values(state.sh_degree);
+    let unseen = |slot: &SplatSlot| {
+        !buffers
+            .gradient_reached
+            .get(slot.0 as usize)
+            .is_some_and(|&reached| reached)
+    };
+    let visible_only = settings.train.visible_adam;
     params
         .par_iter_mut()
-        .for_each(|(mut value, grad, mut adam)| {
+        .for_each(|(mut value, grad, mut adam, slot)| {
+            if visible_only && unseen(slot) {
+                return;
+            }
             let adam = &mut *adam;
             let (m, v) = (adam.m.values_mut(), adam.v.values_mut());
             for (i, (x, g)) in value.values_mut()[..active]

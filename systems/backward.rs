@@ -78,6 +78,11 @@ pub fn backward_splats(
             }
         })
         .collect_into_vec(&mut buffers.deformed_grads);
+    buffers
+        .deformed_grads
+        .par_iter()
+        .map(|d| *d != DeformedGrad::default())
+        .collect_into_vec(&mut buffers.gradient_reached);
     Ok(())
 }
 

@@ -373,6 +373,11 @@ fn validate_names_each_bad_field() {
             c.train.lr.temporal_center = 1e-3;
             c.train.backend = tadgs::scene::BackendKind::Gpu;
         }),
+        // The GPU backend's Adam steps every Gaussian.
+        ("train.visible_adam", |c| {
+            c.train.visible_adam = true;
+            c.train.backend = tadgs::scene::BackendKind::Gpu;
+        }),
     ];
     for (expected, edit) in cases {
         let mut c = minimal_config();

@@ -321,6 +321,14 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
             ),
         );
     }
+    if t.visible_adam && t.backend == BackendKind::Gpu {
+        return fail(
+            "train.visible_adam",
+            "is true, but the GPU backend's Adam steps every Gaussian: use \
+             `train.backend: Cpu` or `visible_adam: false`"
+                .to_string(),
+        );
+    }
     if lr.position_final > lr.position {
         return fail(
             "train.lr.position_final",

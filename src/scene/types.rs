@@ -447,6 +447,12 @@ pub struct TrainConfig {
     /// centred (mean log-gain and offset 0 over the training cameras), so the model's colours
     /// are those of an average training camera.
     pub camera_exposure: bool,
+    /// Adam steps only the Gaussians that received a gradient this iteration (drawn in the
+    /// view and not hidden behind opaque pixels); the others keep their parameters and
+    /// moments. Off (the paper and 3DGS): every Gaussian steps, the unseen ones on their
+    /// momentum alone. In a 4D model most Gaussians live far from the view's time, so this
+    /// skips most of the optimiser's work (as gsplat's `visible_adam`). CPU backend only.
+    pub visible_adam: bool,
     /// Learning rates per parameter group.
     pub lr: LearningRates,
     /// Which backend renders and back-propagates.
@@ -470,6 +476,7 @@ impl Default for TrainConfig {
             coarse_downscale: 1,
             coarse_until: 0,
             camera_exposure: false,
+            visible_adam: false,
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
             eval_interval: 0,
