@@ -2,12 +2,17 @@
 //! its cameras, frames and split; malformed files are refused naming the file and the field;
 //! the synthetic demo written out in this layout reads back unchanged.
 
+#[path = "common/round_trip.rs"]
+mod round_trip;
+
 use std::path::Path;
 
 use glam::{DMat4, DVec4, Mat4};
 use serde_json::{Value, json};
 use tadgs::data::nerfstudio::{self, NerfstudioHeldOut, NerfstudioSource};
 use tadgs::data::{Camera, DataError, Dataset};
+
+use round_trip::assert_same_dataset;
 
 /// An OpenGL camera-to-world matrix (rows) for an OpenCV world-to-camera.
 fn gl_c2w_rows(world_to_camera: Mat4) -> Vec<Vec<f64>> {
@@ -388,34 +393,7 @@ fn demo_scene_round_trips_through_the_nerfstudio_layout() {
     let dir = tempfile::tempdir().unwrap();
     write_capture(&original, dir.path());
 
-    let read = load(dir.path()).unwrap();
-    assert_eq!(read.cameras.len(), original.cameras.len());
-    for (c, (a, b)) in original.cameras.iter().zip(&read.cameras).enumerate() {
-        assert_eq!((a.width, a.height), (b.width, b.height), "camera {c}");
-        for (x, y) in [(a.fx, b.fx), (a.fy, b.fy), (a.cx, b.cx), (a.cy, b.cy)] {
-            assert!((x - y).abs() < 1e-5, "camera {c}: {x} vs {y}");
-        }
-        let diff = (a.world_to_camera - b.world_to_camera)
-            .to_cols_array()
-            .iter()
-            .fold(0.0f32, |m, v| m.max(v.abs()));
-        assert!(diff < 1e-5, "camera {c}: pose differs by {diff}");
-    }
-    assert_eq!(read.frame_count, original.frame_count);
-    for (name, a, b) in [
-        ("train", &original.train, &read.train),
-        ("test", &original.test, &read.test),
-    ] {
-        assert_eq!(a.len(), b.len(), "{name}");
-        for view in a {
-            let back = b
-                .iter()
-                .find(|v| v.camera == view.camera && v.frame == view.frame)
-                .unwrap_or_else(|| panic!("{name}: camera {} frame {}", view.camera, view.frame));
-            assert_eq!(back.time, view.time);
-            assert!(back.image == view.image, "{name}: image differs");
-        }
-    }
+    assert_same_dataset(&original, &load(dir.path()).unwrap());
 }
 
 /// Writes `dataset` as a nerfstudio capture in `dir`.

@@ -206,4 +206,11 @@ fn describe_dataset(dataset: &tadgs::data::Dataset) {
         dataset.test.len(),
         dataset.memory_bytes() as f64 / 1e6
     );
+    if !dataset.frame_points.is_empty() {
+        let frames: Vec<usize> = dataset.frame_points.iter().map(|(f, _)| *f).collect();
+        let points: usize = dataset.frame_points.iter().map(|(_, p)| p.len()).sum();
+        println!("initial points {points} in per-frame clouds at frames {frames:?}");
+    } else if let Some(points) = &dataset.points {
+        println!("initial points {} in the dataset's cloud", points.len());
+    }
 }

@@ -5,17 +5,19 @@
 //! also tries `sparse/0` and `sparse` below it. Poses in COLMAP are world-to-camera in the
 //! OpenCV convention already, so they are used as they are.
 //!
-//! Only pinhole intrinsics are modelled: SIMPLE_PINHOLE and PINHOLE exactly; SIMPLE_RADIAL,
-//! RADIAL, OPENCV and FULL_OPENCV keep their fx, fy, cx, cy and drop the distortion (with a
-//! warning when it is non-zero); fisheye models are refused (undistort the images first with
-//! `colmap image_undistorter`).
+//! Perspective models are read with their lens distortion: SIMPLE_PINHOLE and PINHOLE have
+//! none; SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV keep their coefficients in
+//! [`ColmapCamera::distortion`], and the dataset readers undistort their images with
+//! [`super::undistort`] (a posed [`ColmapImage::camera`] is the pinhole part alone). Fisheye
+//! models are refused (undistort the images first with `colmap image_undistorter`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use glam::{DMat3, DQuat, DVec3, Mat4};
 
 use super::error::read_text;
+use super::undistort::Distortion;
 use super::{Camera, DataError};
 use crate::init::InitPoint;
 
@@ -39,6 +41,9 @@ pub struct ColmapCamera {
     pub cx: f32,
     /// Principal point y in pixels.
     pub cy: f32,
+    /// The lens distortion of the model's remaining parameters ([`Distortion::None`] for
+    /// SIMPLE_PINHOLE and PINHOLE).
+    pub distortion: Distortion,
 }
 
 /// A registered image: its file name and the posed camera that took it.
@@ -50,7 +55,7 @@ pub struct ColmapImage {
     pub name: String,
     /// Id of its [`ColmapCamera`].
     pub camera_id: u32,
-    /// Intrinsics of its camera with this image's pose.
+    /// Pinhole intrinsics of its camera (without the distortion) with this image's pose.
     pub camera: Camera,
 }
 
@@ -115,24 +120,32 @@ const fn model(
 
 /// Reads a sparse model from `dir` (or `dir/sparse/0`, `dir/sparse`), binary or text.
 pub fn read_model(dir: &Path) -> Result<ColmapModel, DataError> {
-    let candidates = [dir.to_path_buf(), dir.join("sparse/0"), dir.join("sparse")];
-    for folder in &candidates {
-        for extension in ["bin", "txt"] {
-            let cameras_path = folder.join(format!("cameras.{extension}"));
-            let images_path = folder.join(format!("images.{extension}"));
-            if cameras_path.is_file() && images_path.is_file() {
-                return read_model_files(folder, extension);
-            }
-        }
+    match find_model(dir) {
+        Some((folder, extension)) => read_model_files(&folder, extension),
+        None => Err(DataError::dataset(
+            dir,
+            "no COLMAP model: expected cameras.bin + images.bin + points3D.bin (or the .txt \
+             versions) in this folder, in sparse/0 or in sparse",
+        )),
     }
-    Err(DataError::dataset(
-        dir,
-        "no COLMAP model: expected cameras.bin + images.bin + points3D.bin (or the .txt \
-         versions) in this folder, in sparse/0 or in sparse",
-    ))
 }
 
-fn read_model_files(folder: &Path, extension: &str) -> Result<ColmapModel, DataError> {
+/// The folder of the sparse model in `dir` (`dir` itself, `dir/sparse/0` or `dir/sparse`, the
+/// first that holds `cameras` and `images`) and its files' extension, `bin` (preferred, as
+/// COLMAP writes by default) or `txt`.
+pub fn find_model(dir: &Path) -> Option<(PathBuf, &'static str)> {
+    let candidates = [dir.to_path_buf(), dir.join("sparse/0"), dir.join("sparse")];
+    candidates.into_iter().find_map(|folder| {
+        ["bin", "txt"].into_iter().find_map(|extension| {
+            let cameras = folder.join(format!("cameras.{extension}"));
+            let images = folder.join(format!("images.{extension}"));
+            (cameras.is_file() && images.is_file()).then(|| (folder.clone(), extension))
+        })
+    })
+}
+
+/// Reads the model whose files are in `folder` with `extension` (see [`find_model`]).
+pub fn read_model_files(folder: &Path, extension: &str) -> Result<ColmapModel, DataError> {
     let binary = extension == "bin";
     let cameras_path = folder.join(format!("cameras.{extension}"));
     let images_path = folder.join(format!("images.{extension}"));
@@ -232,8 +245,8 @@ fn build_camera(
     let at = |message: String| DataError::format(path, format!("{place}: {message}"));
     let Some(layout) = model.layout else {
         return Err(at(format!(
-            "camera {id} uses model {}, which is not a pinhole model; undistort the images \
-             first (`colmap image_undistorter`) and use the resulting PINHOLE model",
+            "camera {id} uses the fisheye model {}, which tadgs does not undistort; undistort \
+             the images first (`colmap image_undistorter`) and use the PINHOLE model it writes",
             model.name
         )));
     };
@@ -255,14 +268,6 @@ fn build_camera(
             "camera {id} has non-positive focal length {fx}, {fy}"
         )));
     }
-    if distortion.iter().any(|&k| k != 0.0) {
-        tracing::warn!(
-            "{}: {place}: camera {id} ({}) has distortion {distortion:?}, which is ignored; \
-             undistort the images for exact results",
-            path.display(),
-            model.name
-        );
-    }
     Ok(ColmapCamera {
         id,
         model: model.name,
@@ -272,6 +277,7 @@ fn build_camera(
         fy: fy as f32,
         cx: cx as f32,
         cy: cy as f32,
+        distortion: Distortion::from_colmap(model.name, distortion),
     })
 }
 

@@ -47,15 +47,7 @@ impl DNerfSource {
                 format!("must be \"test\" or \"val\", found {:?}", self.test_split),
             ));
         }
-        for (i, &c) in self.background.iter().enumerate() {
-            if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
-                return Err(FieldError::new(
-                    "background",
-                    format!("channel {i} is {c}, outside [0, 1]"),
-                ));
-            }
-        }
-        Ok(())
+        check_background(&self.background)
     }
 
     /// A source with D-NeRF's defaults: white background, half resolution, `test` split.
@@ -67,6 +59,19 @@ impl DNerfSource {
             test_split: test_split(),
         }
     }
+}
+
+/// Checks a `background` setting: every channel finite and in [0, 1].
+pub(crate) fn check_background(background: &[f32; 3]) -> Result<(), FieldError> {
+    for (i, &c) in background.iter().enumerate() {
+        if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
+            return Err(FieldError::new(
+                "background",
+                format!("channel {i} is {c}, outside [0, 1]"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn white() -> [f32; 3] {

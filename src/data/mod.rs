@@ -2,6 +2,7 @@
 
 pub mod camera;
 pub mod colmap;
+pub mod colmap_video;
 pub mod dnerf;
 pub mod error;
 pub mod n3dv;
@@ -9,6 +10,7 @@ pub mod nerfstudio;
 pub mod panoptic;
 pub mod pointcloud;
 pub mod synthetic;
+pub mod undistort;
 
 pub use camera::Camera;
 pub use error::DataError;
@@ -63,6 +65,10 @@ pub struct Dataset {
     pub test: Vec<View>,
     /// An initial point cloud shipped with the dataset, if any.
     pub points: Option<Vec<crate::init::InitPoint>>,
+    /// Point clouds of single frames (a COLMAP reconstruction per anchor frame), in increasing
+    /// frame order; where there are any, each anchor frame starts from the nearest frame's
+    /// cloud instead of [`Dataset::points`] (see [`Dataset::nearest_frame_points`]).
+    pub frame_points: Vec<(usize, Vec<crate::init::InitPoint>)>,
 }
 
 impl Dataset {
@@ -90,6 +96,43 @@ impl Dataset {
             frame_count,
             train,
             ..Self::default()
+        }
+    }
+
+    /// The per-frame point cloud nearest in time to `frame` (the earlier one on a tie), with
+    /// the frame it belongs to; `None` when the dataset has no per-frame clouds.
+    pub fn nearest_frame_points(&self, frame: usize) -> Option<(usize, &[crate::init::InitPoint])> {
+        self.frame_points
+            .iter()
+            .min_by_key(|(f, _)| f.abs_diff(frame))
+            .map(|(f, points)| (*f, points.as_slice()))
+    }
+
+    /// Adds `camera`'s views at frames 0, 1, … from `images` (at most `frame_count` of them)
+    /// to the held-out views when `held_out`, otherwise to the training views.
+    pub(crate) fn push_camera_frames(
+        &mut self,
+        camera: usize,
+        images: Vec<image::RgbImage>,
+        held_out: bool,
+    ) {
+        let frame_count = self.frame_count;
+        let views = images
+            .into_iter()
+            .take(frame_count)
+            .enumerate()
+            .map(|(frame, image)| View {
+                camera,
+                frame,
+                time: frame_time(frame, frame_count),
+                image,
+                dynamic_mask: None,
+                foreground: None,
+            });
+        if held_out {
+            self.test.extend(views);
+        } else {
+            self.train.extend(views);
         }
     }
 
@@ -129,6 +172,7 @@ impl Dataset {
             train,
             test: Vec::new(),
             points: self.points.clone(),
+            frame_points: self.frame_points.clone(),
         }
     }
 
@@ -193,6 +237,10 @@ pub fn load(source: &crate::scene::DataSource) -> Result<Dataset, DataError> {
         DataSource::DNerf(source) => (dnerf::load(source)?, source.path.as_str()),
         DataSource::N3dv(source) => (n3dv::load(source)?, source.path.as_str()),
         DataSource::Nerfstudio(source) => (nerfstudio::load(source)?, source.path.as_str()),
+        DataSource::ColmapFrames(source) => {
+            (colmap_video::load_frames(source)?, source.path.as_str())
+        }
+        DataSource::ColmapRig(source) => (colmap_video::load_rig(source)?, source.path.as_str()),
     };
     check_camera_positions(&dataset.cameras)
         .map_err(|message| DataError::dataset(std::path::Path::new(path), message))?;

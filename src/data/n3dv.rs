@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::error::{check_downscale, read_rgb8, require_folder};
-use super::{Camera, DataError, Dataset, View, frame_time};
+use super::{Camera, DataError, Dataset};
 use crate::io::image::box_downscale;
 use crate::scene::FieldError;
 
@@ -103,7 +103,7 @@ struct LlffPose {
 
 /// Where one camera's frames come from.
 #[derive(Clone, Debug)]
-enum FrameSource {
+pub(crate) enum FrameSource {
     Folder(PathBuf),
     Video(PathBuf),
 }
@@ -117,13 +117,18 @@ impl FrameSource {
 }
 
 /// A camera's frames after loading: their size before downscaling, and the images.
-struct LoadedFrames {
+pub(crate) struct LoadedFrames {
     full_size: (u32, u32),
-    images: Vec<RgbImage>,
+    pub(crate) images: Vec<RgbImage>,
 }
 
-/// Loads an N3DV scene: one [`Camera`] per pose row, every camera × frame as a [`View`];
-/// views of `test_cameras` go to [`Dataset::test`], the rest to [`Dataset::train`].
+/// A check and transformation of each full-size frame before it is downscaled, given the file
+/// (or video) it came from: undistortion for a calibrated rig, nothing for N3DV.
+type PrepareFrame<'a> = dyn Fn(&Path, RgbImage) -> Result<RgbImage, DataError> + Sync + 'a;
+
+/// Loads an N3DV scene: one [`Camera`] per pose row, every camera × frame as a
+/// [`View`](super::View); views of `test_cameras` go to [`Dataset::test`], the rest to
+/// [`Dataset::train`].
 pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
     let root = Path::new(&source.path);
     let poses_path = root.join(POSES_FILE);
@@ -166,30 +171,13 @@ pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
         ));
     }
 
-    let mut per_camera = Vec::with_capacity(sources.len());
-    for (_, frame_source) in &sources {
-        let frames = load_frames(frame_source, source.frames, source.downscale)?;
-        if let Some(wanted) = source.frames
-            && frames.images.len() < wanted
-        {
-            return Err(DataError::dataset(
-                frame_source.path(),
-                format!(
-                    "has {} frames, but `frames` asks for {wanted}",
-                    frames.images.len()
-                ),
-            ));
-        }
-        per_camera.push(frames);
-    }
-    let frame_count = per_camera.iter().map(|f| f.images.len()).min().unwrap_or(0);
-    let longest = per_camera.iter().map(|f| f.images.len()).max().unwrap_or(0);
-    if frame_count != longest {
-        tracing::warn!(
-            "{}: cameras have between {frame_count} and {longest} frames; using the first {frame_count}",
-            root.display()
-        );
-    }
+    let (per_camera, frame_count) = load_cameras(
+        root,
+        sources.iter().map(|(_, frames)| frames),
+        source.frames,
+        source.downscale,
+        &|_, _, image| Ok(image),
+    )?;
 
     let mut cameras = Vec::with_capacity(poses.len());
     for (index, (pose, frames)) in poses.iter().zip(&per_camera).enumerate() {
@@ -210,21 +198,7 @@ pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
     };
     for (camera, frames) in per_camera.into_iter().enumerate() {
         let held_out = source.test_cameras.contains(&camera);
-        for (frame, image) in frames.images.into_iter().take(frame_count).enumerate() {
-            let view = View {
-                camera,
-                frame,
-                time: frame_time(frame, frame_count),
-                image,
-                dynamic_mask: None,
-                foreground: None,
-            };
-            if held_out {
-                dataset.test.push(view);
-            } else {
-                dataset.train.push(view);
-            }
-        }
+        dataset.push_camera_frames(camera, frames.images, held_out);
     }
     Ok(dataset)
 }
@@ -412,21 +386,21 @@ fn find_frame_sources(root: &Path) -> Result<Vec<(String, FrameSource)>, DataErr
         .collect())
 }
 
-fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
+pub(crate) fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
     let entries = std::fs::read_dir(dir).map_err(|e| DataError::io(dir, e))?;
     entries
         .map(|entry| entry.map(|e| e.path()).map_err(|e| DataError::io(dir, e)))
         .collect()
 }
 
-fn entry_name(path: &Path) -> String {
+pub(crate) fn entry_name(path: &Path) -> String {
     path.file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default()
 }
 
 /// Sort key that orders `cam2` before `cam10` and `9.png` before `10.png`.
-fn natural_key(name: &str) -> (String, Option<u64>, String) {
+pub(crate) fn natural_key(name: &str) -> (String, Option<u64>, String) {
     let stem = name.split('.').next().unwrap_or(name);
     let digits_start = stem.trim_end_matches(|c: char| c.is_ascii_digit()).len();
     let number = stem[digits_start..].parse().ok();
@@ -446,14 +420,56 @@ fn has_frames(dir: &Path) -> bool {
         .is_ok_and(|mut entries| entries.any(|e| e.is_ok_and(|e| is_frame_file(&e.path()))))
 }
 
+/// Loads each camera's frames with [`load_frames`] (`prepare` is also given the camera's
+/// index), checks that every camera has the `limit` frames asked for, and returns them with the
+/// number of frames all cameras have: the shortest camera's, with a warning when they differ.
+pub(crate) fn load_cameras<'a>(
+    root: &Path,
+    sources: impl IntoIterator<Item = &'a FrameSource>,
+    limit: Option<usize>,
+    downscale: u32,
+    prepare: &(dyn Fn(usize, &Path, RgbImage) -> Result<RgbImage, DataError> + Sync),
+) -> Result<(Vec<LoadedFrames>, usize), DataError> {
+    let mut per_camera = Vec::new();
+    for (camera, frame_source) in sources.into_iter().enumerate() {
+        let frames = load_frames(frame_source, limit, downscale, &|path, image| {
+            prepare(camera, path, image)
+        })?;
+        if let Some(wanted) = limit
+            && frames.images.len() < wanted
+        {
+            return Err(DataError::dataset(
+                frame_source.path(),
+                format!(
+                    "has {} frames, but `frames` asks for {wanted}",
+                    frames.images.len()
+                ),
+            ));
+        }
+        per_camera.push(frames);
+    }
+    let frame_count = per_camera.iter().map(|f| f.images.len()).min().unwrap_or(0);
+    let longest = per_camera.iter().map(|f| f.images.len()).max().unwrap_or(0);
+    if frame_count != longest {
+        tracing::warn!(
+            "{}: cameras have between {frame_count} and {longest} frames; using the first {frame_count}",
+            root.display()
+        );
+    }
+    Ok((per_camera, frame_count))
+}
+
+/// Reads up to `limit` frames of one camera, each passed through `prepare` at full size and
+/// then downscaled.
 fn load_frames(
     source: &FrameSource,
     limit: Option<usize>,
     downscale: u32,
+    prepare: &PrepareFrame,
 ) -> Result<LoadedFrames, DataError> {
     match source {
-        FrameSource::Folder(dir) => load_frame_folder(dir, limit, downscale),
-        FrameSource::Video(video) => decode_video(video, limit, downscale),
+        FrameSource::Folder(dir) => load_frame_folder(dir, limit, downscale, prepare),
+        FrameSource::Video(video) => decode_video(video, limit, downscale, prepare),
     }
 }
 
@@ -495,6 +511,7 @@ fn load_frame_folder(
     dir: &Path,
     limit: Option<usize>,
     downscale: u32,
+    prepare: &PrepareFrame,
 ) -> Result<LoadedFrames, DataError> {
     let mut files = list_frame_files(dir)?;
     if let Some(limit) = limit {
@@ -503,12 +520,14 @@ fn load_frame_folder(
     let first = read_rgb8(&files[0], None)?;
     let full_size = first.dimensions();
     check_downscale(&files[0], full_size, downscale)?;
-    let mut images = vec![box_downscale(&first, downscale)];
-    drop(first);
+    let mut images = vec![box_downscale(&prepare(&files[0], first)?, downscale)];
     let rest: Vec<RgbImage> = files[1..]
         .par_iter()
-        .map(|file| read_rgb8(file, Some(full_size)).map(|img| box_downscale(&img, downscale)))
-        .collect::<Result<_, _>>()?;
+        .map(|file| {
+            let image = prepare(file, read_rgb8(file, Some(full_size))?)?;
+            Ok(box_downscale(&image, downscale))
+        })
+        .collect::<Result<_, DataError>>()?;
     images.extend(rest);
     Ok(LoadedFrames { full_size, images })
 }
@@ -574,6 +593,7 @@ fn decode_video(
     video: &Path,
     limit: Option<usize>,
     downscale: u32,
+    prepare: &PrepareFrame,
 ) -> Result<LoadedFrames, DataError> {
     if !video.is_file() {
         return Err(DataError::dataset(
@@ -612,14 +632,24 @@ fn decode_video(
     let mut buffer = vec![0u8; frame_bytes];
     let mut images = Vec::new();
     let mut read_error = None;
+    let mut prepare_error = None;
     loop {
         match fill(&mut stdout, &mut buffer) {
             Ok(0) => break,
             Ok(n) if n == frame_bytes => {
-                let frame = RgbImage::from_raw(width, height, std::mem::take(&mut buffer))
-                    .expect("buffer holds exactly one frame");
-                images.push(box_downscale(&frame, downscale));
-                buffer = frame.into_raw();
+                let frame = RgbImage::from_raw(
+                    width,
+                    height,
+                    std::mem::replace(&mut buffer, vec![0; frame_bytes]),
+                )
+                .expect("buffer holds exactly one frame");
+                match prepare(video, frame) {
+                    Ok(frame) => images.push(box_downscale(&frame, downscale)),
+                    Err(error) => {
+                        prepare_error = Some(error);
+                        break;
+                    }
+                }
             }
             Ok(n) => {
                 read_error = Some(format!(
@@ -635,6 +665,12 @@ fn decode_video(
         }
     }
     drop(stdout);
+    if let Some(error) = prepare_error {
+        let _ = child.kill();
+        let _ = child.wait();
+        let _ = stderr_thread.join();
+        return Err(error);
+    }
     let status = child.wait().map_err(|e| DataError::io(video, e))?;
     let stderr_text = stderr_thread.join().unwrap_or_default();
     if !status.success() || read_error.is_some() {

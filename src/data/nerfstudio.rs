@@ -34,7 +34,7 @@ use glam::DMat4;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::dnerf::{blender_to_opencv_w2c, composite_downscaled, image_path};
+use super::dnerf::{blender_to_opencv_w2c, check_background, composite_downscaled, image_path};
 use super::error::{check_downscale, open_image, read_text};
 use super::panoptic::parse_rigid;
 use super::{Camera, DataError, Dataset, View};
@@ -124,15 +124,7 @@ impl NerfstudioSource {
             }
             _ => {}
         }
-        for (i, &c) in self.background.iter().enumerate() {
-            if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
-                return Err(FieldError::new(
-                    "background",
-                    format!("channel {i} is {c}, outside [0, 1]"),
-                ));
-            }
-        }
-        Ok(())
+        check_background(&self.background)
     }
 
     /// The transforms file and the folder its paths are relative to.

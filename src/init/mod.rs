@@ -153,10 +153,20 @@ pub(crate) fn anchor_points(
                 }
             }
         }
-        InitMethod::Auto => Ok(match dataset.points.clone() {
-            Some(points) => CarvedPoints::undivided(points),
-            None => random(rng),
-        }),
+        InitMethod::Auto => {
+            if let Some((source, points)) = dataset.nearest_frame_points(frame) {
+                if source != frame {
+                    tracing::warn!(
+                        "anchor frame {frame} has no point cloud of its own; using frame {source}'s"
+                    );
+                }
+                return Ok(CarvedPoints::undivided(points.to_vec()));
+            }
+            Ok(match dataset.points.clone() {
+                Some(points) => CarvedPoints::undivided(points),
+                None => random(rng),
+            })
+        }
         InitMethod::PointCloud(_) => unreachable!("point-cloud files are read once by the caller"),
     }
 }

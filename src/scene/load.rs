@@ -420,6 +420,9 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
         DataSource::N3dv(n) => n.check().map_err(|e| e.within("data")),
         DataSource::DNerf(d) => d.check().map_err(|e| e.within("data")),
         DataSource::Nerfstudio(n) => n.check().map_err(|e| e.within("data")),
+        DataSource::ColmapFrames(c) | DataSource::ColmapRig(c) => {
+            c.check().map_err(|e| e.within("data"))
+        }
     }
 }
 

@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::data::colmap_video::ColmapSource;
 use crate::data::dnerf::DNerfSource;
 use crate::data::n3dv::N3dvSource;
 use crate::data::nerfstudio::NerfstudioSource;
@@ -92,6 +93,13 @@ pub enum DataSource {
     /// A nerfstudio capture (transforms.json with pinhole intrinsics, optional per-frame time,
     /// optional ply_file_path).
     Nerfstudio(NerfstudioSource),
+    /// Per-frame COLMAP folders, as SpacetimeGaussians and TAD-GS preprocess N3DV:
+    /// `colmap_<frame>/images/<camera>.png`, and `colmap_<frame>/sparse/0/` on the frames
+    /// COLMAP ran on (their points initialise those anchor frames).
+    ColmapFrames(ColmapSource),
+    /// One COLMAP model of a static rig (`sparse/0/`, an image per camera) and per-camera
+    /// frame folders `frames/<camera>/<index>.png` (or videos `<camera>.mp4`).
+    ColmapRig(ColmapSource),
 }
 
 impl SceneConfig {
@@ -104,6 +112,9 @@ impl SceneConfig {
             DataSource::DNerf(source) => paths.push(&mut source.path),
             DataSource::N3dv(source) => paths.push(&mut source.path),
             DataSource::Nerfstudio(source) => paths.push(&mut source.path),
+            DataSource::ColmapFrames(source) | DataSource::ColmapRig(source) => {
+                paths.push(&mut source.path)
+            }
         }
         if let InitMethod::PointCloud(path) = &mut self.init.method {
             paths.push(path);
@@ -127,7 +138,8 @@ impl SceneConfig {
 pub enum InitMethod {
     /// The visual hull of the foreground masks plus photo-consistent background points where
     /// the training views of the anchor frame have masks (Panoptic `seg/`, D-NeRF alpha);
-    /// otherwise the dataset's own point cloud; otherwise random points. Falls back to random
+    /// otherwise the dataset's own point cloud (the nearest frame's, where the dataset has one
+    /// per frame, as per-frame COLMAP folders do); otherwise random points. Falls back to random
     /// points (with a warning) when carving finds nothing.
     Auto,
     /// Random points in the cameras' common view volume with random colours.
