@@ -110,13 +110,13 @@ pub fn position_lr(lr: &LearningRates, iteration: u32, iterations: u32, extent: 
 }
 
 /// One Adam step on every Gaussian's `P`, with bias correction for the global step.
-/// With `train.visible_adam`, Gaussians that received no gradient (see
-/// [`crate::systems::backward::backward_parameters`]) are left as they are.
+/// With `train.visible_adam`, Gaussians that received no gradient
+/// ([`SplatBuffers::gradient_reached`]) are left as they are.
 pub fn adam_step<P: ParamGroup>(
     settings: Res<Settings>,
     state: Res<TrainState>,
-    buffers: Res<SplatBuffers>,
-    mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>, &SplatSlot)>,
+    buffers: Option<Res<SplatBuffers>>,
+    mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>, Option<&SplatSlot>)>,
 ) {
     let lr = &settings.train.lr;
     let rates = P::learning_rates(
@@ -130,17 +130,20 @@ pub fn adam_step<P: ParamGroup>(
     );
     let bias = BiasCorrection::after(state.iteration.max(1) as i32);
     let active = P::active_values(state.sh_degree);
-    let unseen = |slot: &SplatSlot| {
-        !buffers
-            .gradient_reached
-            .get(slot.0 as usize)
-            .is_some_and(|&reached| reached)
+    // Without the splatting stage's buffers (a world that only optimises), every Gaussian
+    // counts as seen.
+    let reached = buffers
+        .as_deref()
+        .filter(|_| settings.train.visible_adam)
+        .map(|b| b.gradient_reached.as_slice());
+    let unseen = |slot: Option<&SplatSlot>| match (reached, slot) {
+        (Some(reached), Some(slot)) => !reached.get(slot.0 as usize).is_some_and(|&r| r),
+        _ => false,
     };
-    let visible_only = settings.train.visible_adam;
     params
         .par_iter_mut()
         .for_each(|(mut value, grad, mut adam, slot)| {
-            if visible_only && unseen(slot) {
+            if unseen(slot) {
                 return;
             }
             let adam = &mut *adam;
