@@ -17,7 +17,7 @@ use tadgs::data::colmap_video::{self, ColmapSource};
 use tadgs::data::undistort::{Distortion, Undistortion};
 use tadgs::data::{Camera, DataError, Dataset};
 
-use round_trip::{assert_same_dataset, camera_difference};
+use round_trip::{assert_same_dataset, assert_trains_alike, camera_difference};
 
 // ---------------------------------------------------------------------------------------
 // Writing COLMAP models (text and binary, as COLMAP does)
@@ -734,7 +734,8 @@ fn demo() -> (Dataset, Vec<ModelImage>) {
 }
 
 /// The demo written as per-frame folders (a text model at frame 0, a binary one at frame 3)
-/// and as a rig (binary model, frame folders) reads back unchanged.
+/// and as a rig (binary model, frame folders) reads back unchanged, and trains to the same
+/// held-out PSNR within 0.2 dB.
 #[test]
 fn demo_scene_round_trips_through_both_layouts() {
     let (original, images) = demo();
@@ -764,12 +765,16 @@ fn demo_scene_round_trips_through_both_layouts() {
         test_cameras: vec!["cam05".into()],
         ..source(frames_dir.path())
     };
-    assert_same_dataset(&original, &colmap_video::load_frames(&held_out).unwrap());
+    let frames = colmap_video::load_frames(&held_out).unwrap();
+    assert_same_dataset(&original, &frames);
+    assert_trains_alike(&original, &frames);
     let held_out = ColmapSource {
         path: rig_dir.path().to_string_lossy().into(),
         ..held_out
     };
-    assert_same_dataset(&original, &colmap_video::load_rig(&held_out).unwrap());
+    let rig = colmap_video::load_rig(&held_out).unwrap();
+    assert_same_dataset(&original, &rig);
+    assert_trains_alike(&original, &rig);
 }
 
 // ---------------------------------------------------------------------------------------
