@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use tadgs::data::Dataset;
 use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
-use tadgs::report::{DensifyRecord, HeldoutRecord, Report, StepRecord, TrainingLog};
+use tadgs::report::{DensifyRecord, FrameScores, HeldoutRecord, Report, StepRecord, TrainingLog};
 use tadgs::resources::CameraExposures;
 use tadgs::scene::{SceneConfig, apply_overrides, set_override};
 use tadgs::train::Trainer;
@@ -481,6 +481,16 @@ impl Run<'_> {
             log: &self.log,
             lifespans: self.trainer.lifespans(),
             views,
+            frames: FrameScores::per_frame(
+                evaluation
+                    .scores
+                    .iter()
+                    .map(|v| (v.frame, v.psnr, v.masked_psnr)),
+            ),
+            anchor_frames: tadgs::init::anchor_frames(
+                dataset.frame_count,
+                self.config.init.anchor_spacing,
+            ),
         };
         let page = report
             .write(&self.output.join("report"))

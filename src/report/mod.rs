@@ -3,7 +3,8 @@
 //! `index.html` shows the run's figures, then `loss.png` (training loss over iterations),
 //! `psnr.png` (training-view PSNR, smoothed, and held-out PSNR), `gaussians.png` (Gaussian
 //! count with the densification steps marked), `lifespans.png` (histogram of the normalised
-//! temporal lifespans ψ̄) and, for a few held-out views, `view_N.png`: render | ground truth |
+//! temporal lifespans ψ̄), `frames.png` (held-out PSNR and M-PSNR per frame, anchor frames
+//! marked) and, for a few held-out views, `view_N.png`: render | ground truth |
 //! error heat-map. Plots are drawn with plotters into RGB buffers; their text uses the
 //! DejaVu Sans font embedded in the binary, so no system font is needed.
 
@@ -50,6 +51,40 @@ pub struct ReportView {
     pub ground_truth: Image,
 }
 
+/// Held-out scores of one frame, averaged over the held-out cameras.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameScores {
+    /// Frame index.
+    pub frame: usize,
+    /// Mean PSNR of the frame's held-out views.
+    pub psnr: f32,
+    /// Mean M-PSNR of those of its views that have a dynamic mask (`None`: none has).
+    pub masked_psnr: Option<f32>,
+}
+
+impl FrameScores {
+    /// Per-frame means of `(frame, PSNR, M-PSNR)` view scores, in increasing frame order.
+    pub fn per_frame(views: impl IntoIterator<Item = (usize, f32, Option<f32>)>) -> Vec<Self> {
+        let mut sums = std::collections::BTreeMap::<usize, (f32, u32, f32, u32)>::new();
+        for (frame, psnr, masked) in views {
+            let sum = sums.entry(frame).or_default();
+            sum.0 += psnr;
+            sum.1 += 1;
+            if let Some(m) = masked.filter(|m| m.is_finite()) {
+                sum.2 += m;
+                sum.3 += 1;
+            }
+        }
+        sums.into_iter()
+            .map(|(frame, (psnr, n, masked, m))| Self {
+                frame,
+                psnr: psnr / n as f32,
+                masked_psnr: (m > 0).then(|| masked / m as f32),
+            })
+            .collect()
+    }
+}
+
 /// What the report shows.
 pub struct Report<'a> {
     /// Page title and heading (HTML-escaped when written).
@@ -62,6 +97,10 @@ pub struct Report<'a> {
     pub lifespans: Vec<f32>,
     /// Held-out views shown as render | ground truth | error strips.
     pub views: Vec<ReportView>,
+    /// Held-out scores per frame (empty: no plot).
+    pub frames: Vec<FrameScores>,
+    /// The anchor frames the Gaussians were initialised at, marked on the per-frame plot.
+    pub anchor_frames: Vec<usize>,
 }
 
 /// Mean absolute error (over channels) that maps to the top of the heat-map colour scale.
@@ -100,6 +139,15 @@ impl Report<'_> {
                 "lifespans.png",
                 "Normalised temporal lifespan ψ̄ of the final Gaussians: the fraction of the \
                  sequence in which σ(t)/σˢ > 0.2.",
+            ));
+        }
+        if self.frames.len() > 1 {
+            plot::by_frame(&dir.join("frames.png"), &self.frames, &self.anchor_frames)?;
+            sections.push(figure(
+                "frames.png",
+                "Held-out PSNR and M-PSNR per frame (mean over the held-out cameras); orange \
+                 dashed lines mark the anchor frames the Gaussians started at. Scores that dip \
+                 half-way between anchors mean the Gaussians' lifespans do not cover the gap.",
             ));
         }
         for (index, view) in self.views.iter().enumerate() {
@@ -217,6 +265,56 @@ fn heat(v: f32) -> [f32; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Views are averaged per frame, in frame order; M-PSNR only over the views that have
+    /// one (a frame with none has none).
+    #[test]
+    fn frame_scores_average_each_frame() {
+        let frames = FrameScores::per_frame([
+            (3, 20.0, Some(10.0)),
+            (1, 30.0, None),
+            (3, 24.0, None),
+            (3, 22.0, Some(14.0)),
+            (1, 32.0, None),
+        ]);
+        assert_eq!(
+            frames,
+            [
+                FrameScores {
+                    frame: 1,
+                    psnr: 31.0,
+                    masked_psnr: None
+                },
+                FrameScores {
+                    frame: 3,
+                    psnr: 22.0,
+                    masked_psnr: Some(12.0)
+                },
+            ]
+        );
+    }
+
+    /// The report with per-frame scores writes `frames.png` and shows it on the page.
+    #[test]
+    fn report_plots_scores_per_frame() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = TrainingLog::default();
+        let report = Report {
+            title: "t".into(),
+            figures: Vec::new(),
+            log: &log,
+            lifespans: Vec::new(),
+            views: Vec::new(),
+            frames: FrameScores::per_frame(
+                (0..40).map(|f| (f, 25.0 + (f % 20) as f32 * 0.1, Some(20.0))),
+            ),
+            anchor_frames: vec![0, 20, 39],
+        };
+        let page = std::fs::read_to_string(report.write(dir.path()).unwrap()).unwrap();
+        assert!(page.contains("frames.png"));
+        let image = image::open(dir.path().join("frames.png")).unwrap();
+        assert!(image.width() > 100 && image.height() > 100);
+    }
 
     /// The heat-map is black where render and truth agree and yellow at full-scale error.
     #[test]

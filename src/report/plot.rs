@@ -237,6 +237,51 @@ pub fn gaussians(path: &Path, log: &TrainingLog) -> Result<(), ReportError> {
     })
 }
 
+/// Held-out PSNR and M-PSNR per frame, with the anchor frames as dashed vertical lines.
+pub fn by_frame(
+    path: &Path,
+    frames: &[super::FrameScores],
+    anchors: &[usize],
+) -> Result<(), ReportError> {
+    let psnr: Vec<(f32, f32)> = frames.iter().map(|f| (f.frame as f32, f.psnr)).collect();
+    let masked: Vec<(f32, f32)> = frames
+        .iter()
+        .filter_map(|f| Some((f.frame as f32, f.masked_psnr?)))
+        .collect();
+    let (lo, hi) = range(psnr.iter().chain(&masked).map(|p| p.1));
+    let last = frames.last().map_or(1, |f| f.frame.max(1)) as f32;
+    save_plot(path, |root| {
+        let axes = (0.0..last, lo..hi);
+        let title = "Held-out scores per frame";
+        let mut chart = chart(root, title, axes, ("frame", "dB"))?;
+        let orange = RGBColor(230, 120, 30);
+        for &anchor in anchors {
+            let x = anchor as f32;
+            let style = orange.stroke_width(2);
+            chart.draw_series(DashedLineSeries::new([(x, lo), (x, hi)], 6, 4, style))?;
+        }
+        if !anchors.is_empty() {
+            chart
+                .draw_series(std::iter::empty::<Circle<(f32, f32), u32>>())?
+                .label(format!("anchor frames ({})", anchors.len()))
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], orange.stroke_width(2))
+                });
+        }
+        line(&mut chart, psnr, RGBColor(20, 70, 160), 2, "PSNR")?;
+        if !masked.is_empty() {
+            line(
+                &mut chart,
+                masked,
+                RGBColor(200, 40, 30),
+                2,
+                "M-PSNR (dynamic pixels)",
+            )?;
+        }
+        legend(&mut chart, SeriesLabelPosition::LowerRight)
+    })
+}
+
 /// Histogram of normalised lifespans in 20 bins over [0, 1].
 pub fn lifespans(path: &Path, lifespans: &[f32]) -> Result<(), ReportError> {
     const BINS: usize = 20;
