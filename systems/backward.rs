@@ -59,7 +59,7 @@ pub fn backward_splats(
         .map(|((d, s), g)| {
             // Splats behind opaque pixels get no gradient: nothing to chain back.
             if !s.visible || *g == SplatGrad::default() {
-                return DeformedGrad::default();
+                return (DeformedGrad::default(), false);
             }
             let p = project_backward(
                 Vec3::from_array(d.mean),
@@ -69,20 +69,16 @@ pub fn backward_splats(
                 g.mean2d,
                 g.conic,
             );
-            DeformedGrad {
+            let grad = DeformedGrad {
                 mean: p.mean,
                 rotation: p.quat,
                 scale: p.scale,
                 opacity: g.opacity,
                 color: g.color,
-            }
+            };
+            (grad, grad != DeformedGrad::default())
         })
-        .collect_into_vec(&mut buffers.deformed_grads);
-    buffers
-        .deformed_grads
-        .par_iter()
-        .map(|d| *d != DeformedGrad::default())
-        .collect_into_vec(&mut buffers.gradient_reached);
+        .unzip_into_vecs(&mut buffers.deformed_grads, &mut buffers.gradient_reached);
     Ok(())
 }
 

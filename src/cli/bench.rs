@@ -6,11 +6,11 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 use tadgs::bench::{BenchReport, run, time_world};
-use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
-use tadgs::scene::{BackendKind, apply_overrides, set_override};
+use tadgs::io::checkpoint::Checkpoint;
+use tadgs::scene::{BackendKind, apply_overrides};
 use tadgs::train::Trainer;
 
-use super::{load_dataset, load_with_overrides};
+use super::{backend_kind, checkpoint_and_run, load_dataset, load_with_overrides, set_backend};
 
 /// Options of `tadgs bench`.
 #[derive(clap::Args, Clone, Debug)]
@@ -45,10 +45,7 @@ pub struct BenchArgs {
 /// `tadgs bench`: one table per (Gaussians, size) pair of the benchmark scene, or one for the
 /// scene or checkpoint given.
 pub fn bench(args: &BenchArgs) -> Result<()> {
-    let backend = match args.backend.as_str() {
-        "gpu" => BackendKind::Gpu,
-        _ => BackendKind::Cpu,
-    };
+    let backend = backend_kind(&args.backend);
     if !args.overrides.is_empty() && args.scene.is_none() && args.checkpoint.is_none() {
         bail!("--set changes a scene's settings: give --scene FILE.ron or --checkpoint DIR");
     }
@@ -90,29 +87,20 @@ fn parse_size(s: &str) -> Result<(u32, u32)> {
 
 /// Times the scene file or checkpoint of `args`.
 fn real_scene(args: &BenchArgs, backend: BackendKind) -> Result<BenchReport> {
-    let backend_name = if backend == BackendKind::Gpu {
-        "Gpu"
-    } else {
-        "Cpu"
-    };
     let (trainer, label) = match (&args.scene, &args.checkpoint) {
         (Some(path), _) => {
             let mut config = load_with_overrides(path, &args.overrides)?;
-            set_override(&mut config, "train.backend", backend_name)?;
+            set_backend(&mut config, backend)?;
             let dataset = Arc::new(load_dataset(&config)?);
             let label = format!("scene `{}`, initial population", config.name);
             (Trainer::try_new(&config, dataset)?, label)
         }
         (None, Some(dir)) => {
-            let folder = if dir.join(STATE_FILE).is_file() {
-                dir.clone()
-            } else {
-                dir.join("checkpoint")
-            };
+            let (folder, _) = checkpoint_and_run(dir);
             let mut checkpoint = Checkpoint::load(&folder)?;
             let config = &mut checkpoint.state.scene;
             apply_overrides(config, &args.overrides)?;
-            set_override(config, "train.backend", backend_name)?;
+            set_backend(config, backend)?;
             let dataset = Arc::new(load_dataset(config)?);
             let label = format!("scene `{}`, checkpoint {}", config.name, folder.display());
             (Trainer::from_checkpoint(&checkpoint, dataset)?, label)

@@ -10,13 +10,14 @@ pub mod render;
 pub mod run_folder;
 pub mod train;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use tadgs::data::Dataset;
-use tadgs::scene::{SceneConfig, apply_overrides, load_scene};
+use tadgs::io::checkpoint::STATE_FILE;
+use tadgs::scene::{BackendKind, SceneConfig, apply_overrides, load_scene, set_override};
 
 /// How much the commands print: `quiet` hides progress bars and informational logs.
 #[derive(Clone, Copy, Debug)]
@@ -46,6 +47,33 @@ pub fn load_with_overrides(path: &Path, overrides: &[String]) -> Result<SceneCon
     let mut config = load_scene(path)?;
     apply_overrides(&mut config, overrides)?;
     Ok(config)
+}
+
+/// The backend a `--backend cpu|gpu` flag names (clap allows only those two).
+pub fn backend_kind(flag: &str) -> BackendKind {
+    if flag == "gpu" {
+        BackendKind::Gpu
+    } else {
+        BackendKind::Cpu
+    }
+}
+
+/// Sets `train.backend`, checked like any `--set` (settings the backend cannot run are
+/// refused).
+pub fn set_backend(config: &mut SceneConfig, backend: BackendKind) -> Result<()> {
+    set_override(config, "train.backend", &format!("{backend:?}"))?;
+    Ok(())
+}
+
+/// The checkpoint folder and the run folder of `dir`, which names either (as `--resume` and
+/// `bench --checkpoint` take it).
+pub fn checkpoint_and_run(dir: &Path) -> (PathBuf, PathBuf) {
+    if dir.join(STATE_FILE).is_file() {
+        let run = dir.parent().unwrap_or(Path::new("."));
+        (dir.to_path_buf(), run.to_path_buf())
+    } else {
+        (dir.join("checkpoint"), dir.to_path_buf())
+    }
 }
 
 /// Loads (or renders, for synthetic scenes) a scene's data, logging what it holds.

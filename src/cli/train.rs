@@ -8,15 +8,18 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use tadgs::data::Dataset;
-use tadgs::io::checkpoint::{Checkpoint, STATE_FILE};
+use tadgs::io::checkpoint::Checkpoint;
 use tadgs::report::{DensifyRecord, FrameScores, HeldoutRecord, Report, StepRecord, TrainingLog};
 use tadgs::resources::CameraExposures;
-use tadgs::scene::{SceneConfig, apply_overrides, set_override};
+use tadgs::scene::{SceneConfig, apply_overrides};
 use tadgs::train::Trainer;
 
 use super::eval::{EvalArgs, RunSummary, evaluate, write_metrics};
 use super::run_folder::{RunLock, refuse_existing_run, remove_run_outputs, same_folder};
-use super::{Ui, load_dataset, load_with_overrides, scene_text, write_atomic};
+use super::{
+    Ui, backend_kind, checkpoint_and_run, load_dataset, load_with_overrides, scene_text,
+    set_backend, write_atomic,
+};
 
 /// Held-out views shown in the run report.
 const REPORT_VIEWS: usize = 4;
@@ -121,14 +124,7 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
             (config, None, output, false)
         }
         Some(dir) => {
-            let (folder, run) = if dir.join(STATE_FILE).is_file() {
-                (
-                    dir.clone(),
-                    dir.parent().unwrap_or(Path::new(".")).to_path_buf(),
-                )
-            } else {
-                (dir.join("checkpoint"), dir.clone())
-            };
+            let (folder, run) = checkpoint_and_run(dir);
             let checkpoint = Checkpoint::load(&folder)?;
             refuse_edited_scene(&run, &checkpoint.state.scene)?;
             let mut config = checkpoint.state.scene.clone();
@@ -163,8 +159,7 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
         config.train.eval_interval = n;
     }
     if let Some(backend) = &args.backend {
-        let kind = if backend == "gpu" { "Gpu" } else { "Cpu" };
-        set_override(&mut config, "train.backend", kind)?;
+        set_backend(&mut config, backend_kind(backend))?;
     }
 
     // The run's scene.ron (and checkpoint) must work from any working directory.
