@@ -45,6 +45,7 @@ use serde::{Deserialize, Serialize};
 use super::colmap::{self, ColmapImage};
 use super::error::{check_downscale, read_rgb8, require_folder};
 use super::n3dv::{self, FrameSource};
+use super::settings::{self, check_background, check_downscale_factor};
 use super::undistort::{Distortion, Undistortion};
 use super::{Camera, DataError, Dataset};
 use crate::init::InitPoint;
@@ -65,7 +66,7 @@ pub struct ColmapSource {
     /// Integer factor to shrink images by (box filter, intrinsics scaled to match). The
     /// default 1 keeps the images as they are: the authors' N3DV preprocessing has already
     /// halved them to 1352 × 1014.
-    #[serde(default = "one")]
+    #[serde(default = "settings::one")]
     pub downscale: u32,
     /// Names of the held-out cameras ([`camera_name`] of their images); `[]` holds none out.
     /// The default `["cam00"]` is the N3DV benchmark's.
@@ -74,10 +75,6 @@ pub struct ColmapSource {
     /// Colour (RGB in [0, 1]) of the pixels that undistortion finds no source for.
     #[serde(default = "black")]
     pub background: [f32; 3],
-}
-
-fn one() -> u32 {
-    1
 }
 
 fn default_test_cameras() -> Vec<String> {
@@ -95,7 +92,7 @@ impl ColmapSource {
         Self {
             path: path.into(),
             frames: None,
-            downscale: one(),
+            downscale: settings::one(),
             test_cameras: default_test_cameras(),
             background: black(),
         }
@@ -103,13 +100,11 @@ impl ColmapSource {
 
     /// Checks the settings (not the files): frame count, downscale, background colour.
     pub fn check(&self) -> Result<(), FieldError> {
-        if self.downscale == 0 {
-            return Err(FieldError::new("downscale", "must be at least 1"));
-        }
+        check_downscale_factor(self.downscale)?;
         if self.frames == Some(0) {
             return Err(FieldError::new("frames", "must be at least 1 when given"));
         }
-        super::dnerf::check_background(&self.background)
+        check_background(&self.background)
     }
 
     /// The scene folder, after the settings and the folder itself are checked.

@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::error::{check_downscale, open_image, read_text};
+use super::settings::{self, check_background, check_downscale_factor};
 use super::{Camera, DataError, Dataset, View};
 use crate::io::image::box_filter;
 use crate::scene::FieldError;
@@ -24,7 +25,7 @@ pub struct DNerfSource {
     pub path: String,
     /// Colour (linear RGB in [0, 1]) that the RGBA images are composited over; D-NeRF uses
     /// white.
-    #[serde(default = "white")]
+    #[serde(default = "settings::white")]
     pub background: [f32; 3],
     /// Integer downscale of the 800×800 images (box filter on RGBA, then composite). D-NeRF
     /// trains at half resolution, hence the default 2.
@@ -38,9 +39,7 @@ pub struct DNerfSource {
 impl DNerfSource {
     /// Checks the settings (not the files): downscale, split name and background colour.
     pub fn check(&self) -> Result<(), FieldError> {
-        if self.downscale == 0 {
-            return Err(FieldError::new("downscale", "must be at least 1"));
-        }
+        check_downscale_factor(self.downscale)?;
         if self.test_split != "test" && self.test_split != "val" {
             return Err(FieldError::new(
                 "test_split",
@@ -54,28 +53,11 @@ impl DNerfSource {
     pub fn new(path: impl Into<String>) -> Self {
         Self {
             path: path.into(),
-            background: white(),
+            background: settings::white(),
             downscale: two(),
             test_split: test_split(),
         }
     }
-}
-
-/// Checks a `background` setting: every channel finite and in [0, 1].
-pub(crate) fn check_background(background: &[f32; 3]) -> Result<(), FieldError> {
-    for (i, &c) in background.iter().enumerate() {
-        if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
-            return Err(FieldError::new(
-                "background",
-                format!("channel {i} is {c}, outside [0, 1]"),
-            ));
-        }
-    }
-    Ok(())
-}
-
-fn white() -> [f32; 3] {
-    [1.0; 3]
 }
 
 fn two() -> u32 {

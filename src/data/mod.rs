@@ -9,6 +9,7 @@ pub mod n3dv;
 pub mod nerfstudio;
 pub mod panoptic;
 pub mod pointcloud;
+mod settings;
 pub mod synthetic;
 pub mod undistort;
 

@@ -28,6 +28,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::error::{check_downscale, read_rgb8, require_folder};
+use super::settings::check_downscale_factor;
 use super::{Camera, DataError, Dataset};
 use crate::io::image::box_downscale;
 use crate::scene::FieldError;
@@ -62,9 +63,7 @@ fn default_test_cameras() -> Vec<usize> {
 impl N3dvSource {
     /// Checks the settings (not the files): downscale, frame count, held-out cameras.
     pub fn check(&self) -> Result<(), FieldError> {
-        if self.downscale == 0 {
-            return Err(FieldError::new("downscale", "must be at least 1"));
-        }
+        check_downscale_factor(self.downscale)?;
         if self.frames == Some(0) {
             return Err(FieldError::new("frames", "must be at least 1 when given"));
         }

@@ -34,9 +34,10 @@ use glam::DMat4;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::dnerf::{blender_to_opencv_w2c, check_background, composite_downscaled, image_path};
+use super::dnerf::{blender_to_opencv_w2c, composite_downscaled, image_path};
 use super::error::{check_downscale, open_image, read_text};
 use super::panoptic::parse_rigid;
+use super::settings::{self, check_background, check_downscale_factor};
 use super::{Camera, DataError, Dataset, View};
 use crate::io::image::box_downscale;
 use crate::scene::FieldError;
@@ -69,27 +70,19 @@ pub struct NerfstudioSource {
     pub path: String,
     /// Integer downscale of the images (1 = full resolution): box filter, intrinsics scaled
     /// to match, a size not divisible by it rounded down.
-    #[serde(default = "one")]
+    #[serde(default = "settings::one")]
     pub downscale: u32,
     /// Which views are held out.
     #[serde(default = "auto")]
     pub held_out: NerfstudioHeldOut,
     /// Colour (linear RGB in [0, 1]) that RGBA images are composited over; their alpha also
     /// gives the view a foreground mask (unless every pixel is opaque).
-    #[serde(default = "white")]
+    #[serde(default = "settings::white")]
     pub background: [f32; 3],
-}
-
-fn one() -> u32 {
-    1
 }
 
 fn auto() -> NerfstudioHeldOut {
     NerfstudioHeldOut::Auto
-}
-
-fn white() -> [f32; 3] {
-    [1.0; 3]
 }
 
 impl NerfstudioSource {
@@ -98,17 +91,15 @@ impl NerfstudioSource {
     pub fn new(path: impl Into<String>) -> Self {
         Self {
             path: path.into(),
-            downscale: one(),
+            downscale: settings::one(),
             held_out: auto(),
-            background: white(),
+            background: settings::white(),
         }
     }
 
     /// Checks the settings (not the files): downscale, split and background colour.
     pub fn check(&self) -> Result<(), FieldError> {
-        if self.downscale == 0 {
-            return Err(FieldError::new("downscale", "must be at least 1"));
-        }
+        check_downscale_factor(self.downscale)?;
         match &self.held_out {
             NerfstudioHeldOut::Fraction(f) if !(*f > 0.0 && *f <= 1.0) => {
                 return Err(FieldError::new(

@@ -17,6 +17,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::error::{check_downscale, read_mask, read_rgb8, read_text, require_folder};
+use super::settings::{self, check_downscale_factor};
 use super::{Camera, DataError, Dataset, View, frame_time};
 use crate::io::image::box_downscale;
 use crate::scene::FieldError;
@@ -42,7 +43,7 @@ pub struct PanopticSource {
     /// Integer downscale of images and masks (1 = full resolution). Images are box-filtered
     /// (area average), masks sampled nearest, intrinsics scaled to match; a size not
     /// divisible by it is rounded down, dropping the last pixels on the right and bottom.
-    #[serde(default = "one_u32")]
+    #[serde(default = "settings::one")]
     pub downscale: u32,
     /// Training camera ids to hold out as a validation split: their views become the
     /// evaluation set and the capture's own held-out cameras (`test_meta.json`) are not loaded
@@ -64,9 +65,7 @@ impl PanopticSource {
                 "must be at least 1, or None for all",
             ));
         }
-        if self.downscale == 0 {
-            return Err(FieldError::new("downscale", "must be at least 1"));
-        }
+        check_downscale_factor(self.downscale)?;
         if self.validation_cameras.as_ref().is_some_and(Vec::is_empty) {
             return Err(FieldError::new(
                 "validation_cameras",
@@ -90,10 +89,6 @@ impl PanopticSource {
 }
 
 fn one_usize() -> usize {
-    1
-}
-
-fn one_u32() -> u32 {
     1
 }
 
