@@ -2,7 +2,8 @@
 // per splat slot: a visible splat (and, with a minimum, one whose σ(t) exceeds it) adds its
 // gradient norm weighted by σ(t) (VAD) or 1, the weight, its normalised lifespan ψ̄
 // (model/deform.rs::lifespan_fraction through the inverse time warp of model/warp.rs), one to
-// the count, and raises the largest screen radius.
+// the count, the gradient-weighted offset of the view's time from the centre, and raises the
+// largest screen radius.
 
 struct SplatBox {
     mean: vec2<f32>,
@@ -25,6 +26,7 @@ struct GradAccum {
     lifespan_sum: f32,
     count: u32,
     max_radius: f32,
+    weighted_offset: f32,
 }
 
 struct StatsParams {
@@ -43,6 +45,8 @@ struct StatsParams {
     s_near: f32,
     s_far: f32,
     lambda: f32,
+    // The view's normalised time t (for Σw·g·(t − t_i)).
+    time: f32,
 }
 
 const LN_5: f32 = 1.609438;
@@ -116,7 +120,9 @@ fn accumulate_stats(
         weight = sigma;
     }
     var a = accum[i];
-    a.weighted_grad += weight * grad_norm[i];
+    let g = grad_norm[i];
+    a.weighted_offset += weight * g * (params.time - temporal[i].center);
+    a.weighted_grad += weight * g;
     a.weight += weight;
     a.lifespan_sum += lifespan_fraction(temporal[i]);
     a.count += 1u;

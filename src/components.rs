@@ -138,6 +138,9 @@ pub struct GradAccum {
     pub count: u32,
     /// Largest screen radius (pixels) seen.
     pub max_radius: f32,
+    /// Σ w(t)·g(t)·Δt with Δt = t − t_i: where in time the gradient came from, relative to
+    /// the centre (for `densify.clone_time: Gradient`).
+    pub weighted_offset: f32,
 }
 
 /// The warped temporal offset Δt' = W(t − t_i) at the current time.

@@ -8,13 +8,13 @@ use glam::{Quat, Vec2, Vec3};
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::components::{
-    Adam, Deformed, Grad, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot, Temporal,
-    each_param,
+    Adam, Deformed, Fourier, Grad, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot,
+    Temporal, WarpedTime, each_param,
 };
-use crate::model::deform::{lifespan_fraction, logit, rotation_at, sigmoid};
+use crate::model::deform::{fourier_offset, lifespan_fraction, logit, rotation_at, sigmoid};
 use crate::raster::{Splat, SplatGrad};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
-use crate::scene::{CapPolicy, DensifyConfig, TatForm};
+use crate::scene::{CapPolicy, CloneTime, DensifyConfig, TatForm};
 
 /// Children of a split have their scales divided by this.
 pub const SPLIT_SCALE_DIVISOR: f32 = 1.6;
@@ -37,16 +37,30 @@ pub fn ndc_gradient_norm(splat: &Splat, grad: &SplatGrad, half_size: Vec2) -> f3
     }
 }
 
+/// One view's gradient sample of a Gaussian, as the statistics take it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GradSample {
+    /// g: the NDC norm of the 2D-mean gradient ([`ndc_gradient_norm`]).
+    pub grad_norm: f32,
+    /// σ(t): the Gaussian's opacity in the view.
+    pub sigma: f32,
+    /// ψ̄: its normalised lifespan.
+    pub lifespan: f32,
+    /// Δt = t − t_i: the view's time relative to the Gaussian's centre.
+    pub offset: f32,
+}
+
 /// Adds one view's gradient sample to the statistics.
 ///
 /// With VAD the sample is weighted by the Gaussian's opacity σ(t) in that view
 /// (ḡ = Σσ(t)·g(t) / Σσ(t)); without it every visible view weighs 1 (the 3DGS mean).
-pub fn accumulate(accum: &mut GradAccum, grad_norm: f32, sigma: f32, lifespan: f32, vad: bool) {
-    let weight = if vad { sigma } else { 1.0 };
-    accum.weighted_grad += weight * grad_norm;
+pub fn accumulate(accum: &mut GradAccum, sample: GradSample, vad: bool) {
+    let weight = if vad { sample.sigma } else { 1.0 };
+    accum.weighted_grad += weight * sample.grad_norm;
     accum.weight += weight;
-    accum.lifespan_sum += lifespan;
+    accum.lifespan_sum += sample.lifespan;
     accum.count += 1;
+    accum.weighted_offset += weight * sample.grad_norm * sample.offset;
 }
 
 /// The densification signal ḡ: weighted mean gradient (0 when never seen).
@@ -55,6 +69,16 @@ pub fn mean_gradient(accum: &GradAccum) -> f32 {
         accum.weighted_grad / accum.weight
     } else {
         0.0
+    }
+}
+
+/// The time the gradient came from: t_i + Σw·g·Δt / Σw·g, in [0, 1] (t_i when no gradient
+/// reached the Gaussian).
+pub fn gradient_time(accum: &GradAccum, center: f32) -> f32 {
+    if accum.weighted_grad > 0.0 {
+        (center + accum.weighted_offset / accum.weighted_grad).clamp(0.0, 1.0)
+    } else {
+        center
     }
 }
 
@@ -116,27 +140,33 @@ pub fn is_opacity_reset(densify: &DensifyConfig, iterations: u32, i: u32) -> boo
 pub fn accumulate_stats(
     settings: Res<Settings>,
     buffers: Res<SplatBuffers>,
-    mut gaussians: Query<(&SplatSlot, &Deformed, &Temporal, &mut GradAccum)>,
+    mut gaussians: Query<(
+        &SplatSlot,
+        &Deformed,
+        &Temporal,
+        &WarpedTime,
+        &mut GradAccum,
+    )>,
 ) {
     let vad = settings.densify.vad;
     let min_opacity = settings.densify.vad_min_opacity;
     let (warp, model) = (settings.warp, settings.opacity);
     gaussians
         .par_iter_mut()
-        .for_each(|(slot, deformed, temporal, mut accum)| {
+        .for_each(|(slot, deformed, temporal, warped, mut accum)| {
             let slot = slot.0 as usize;
             let splat = &buffers.splats[slot];
             if !splat.visible || min_opacity.is_some_and(|m| deformed.opacity <= m) {
                 return;
             }
             let lifespan = lifespan_fraction(model, temporal.scale, temporal.center, &warp);
-            accumulate(
-                &mut accum,
-                buffers.ndc_grad_norm[slot],
-                deformed.opacity,
+            let sample = GradSample {
+                grad_norm: buffers.ndc_grad_norm[slot],
+                sigma: deformed.opacity,
                 lifespan,
-                vad,
-            );
+                offset: warped.dt,
+            };
+            accumulate(&mut accum, sample, vad);
             accum.max_radius = accum.max_radius.max(splat.extent.max_element());
         });
 }
@@ -149,6 +179,7 @@ pub type DensifyItem<'a> = (
     &'a mut Scale,
     &'a Opacity,
     &'a mut GradAccum,
+    (&'a Temporal, &'a Fourier),
 );
 
 /// A Gaussian that qualified for cloning or splitting, `strength` = ḡ / threshold (≥ 1).
@@ -158,6 +189,8 @@ pub struct Qualified {
     pub entity: Entity,
     /// Its mean gradient ḡ divided by its threshold.
     pub strength: f32,
+    /// Where its gradient came from in time ([`gradient_time`]).
+    pub time: f32,
 }
 
 /// A Gaussian that may give up its place under [`CapPolicy::Replace`]: its spatial opacity.
@@ -167,6 +200,59 @@ pub struct Faint {
     pub entity: Entity,
     /// Its spatial opacity σ^s.
     pub opacity: f32,
+}
+
+/// The parameters of a clone's parent that depend on its temporal centre.
+#[derive(Clone, Copy)]
+pub struct Parent<'a> {
+    /// Canonical mean μ.
+    pub position: &'a Position,
+    /// Fourier motion.
+    pub fourier: &'a Fourier,
+    /// Temporal centre and scale.
+    pub temporal: &'a Temporal,
+    /// Rotation polynomial.
+    pub rotation: &'a Rotation,
+    /// Log-scale polynomial.
+    pub scale: &'a Scale,
+}
+
+/// A copy of `parent` centred at time `time` (`densify.clone_time: Gradient`): at that time
+/// its position, rotation and scale equal the parent's there, and its temporal opacity peaks
+/// there with the parent's width. The motion keeps the parent's coefficients, so the copy
+/// moves at first as the parent moves around its own centre.
+pub fn recentred(
+    parent: Parent,
+    time: f32,
+    settings: &Settings,
+) -> (Position, Temporal, Rotation, Scale) {
+    let dtw = settings.warp.apply(time - parent.temporal.center);
+    let (f, basis) = (parent.fourier, settings.motion_basis());
+    let motion = |dtw| fourier_offset(&f.cos, &f.sin, &f.phase, basis, dtw);
+    let mean = Vec3::from_array(parent.position.mean) + motion(dtw) - motion(0.0);
+    let (r, s) = (parent.rotation, parent.scale);
+    let scale_velocity = if settings.model.scale_motion {
+        s.d1
+    } else {
+        [0.0; 3]
+    };
+    (
+        Position {
+            mean: mean.to_array(),
+        },
+        Temporal {
+            center: time,
+            ..*parent.temporal
+        },
+        Rotation {
+            c0: std::array::from_fn(|k| r.c0[k] + r.c1[k] * dtw),
+            c1: r.c1,
+        },
+        Scale {
+            d0: std::array::from_fn(|k| s.d0[k] + scale_velocity[k] * dtw),
+            d1: s.d1,
+        },
+    )
 }
 
 /// Chooses which of the `qualified` Gaussians (in storage order) are densified when `room`
@@ -226,7 +312,7 @@ pub fn densify_and_prune(
     let mut faint = Vec::new();
     // Gaussians that qualified but were refused by the population cap.
     let mut capped = 0usize;
-    for (entity, _, _, scale, opacity, mut accum) in gaussians.iter_mut() {
+    for (entity, _, _, scale, opacity, mut accum, (temporal, _)) in gaussians.iter_mut() {
         let stats = std::mem::take(&mut *accum);
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
         let sigma = sigmoid(opacity.logit);
@@ -264,6 +350,7 @@ pub fn densify_and_prune(
         qualified.push(Qualified {
             entity,
             strength: gradient / threshold,
+            time: gradient_time(&stats, temporal.center),
         });
     }
     let mut replaced = 0;
@@ -280,7 +367,7 @@ pub fn densify_and_prune(
         qualified = chosen;
     }
     for chosen in &qualified {
-        let Ok((entity, mut position, rotation, mut scale, _, _)) =
+        let Ok((entity, mut position, rotation, mut scale, _, _, (temporal, fourier))) =
             gaussians.get_mut(chosen.entity)
         else {
             continue;
@@ -288,7 +375,19 @@ pub fn densify_and_prune(
         let max_scale = Vec3::from_array(scale.d0).exp().max_element();
         if max_scale <= d.percent_dense * extent {
             // Clone: an identical copy with fresh optimiser state.
-            reset_optimizer(commands.entity(entity).clone_and_spawn());
+            let mut parent_commands = commands.entity(entity);
+            let mut clone = parent_commands.clone_and_spawn();
+            if d.clone_time == CloneTime::Gradient {
+                let parent = Parent {
+                    position: &position,
+                    fourier,
+                    temporal,
+                    rotation,
+                    scale: &scale,
+                };
+                clone.insert(recentred(parent, chosen.time, &settings));
+            }
+            reset_optimizer(clone);
             report.cloned += 1;
         } else {
             // Split: the Gaussian and its copy move to two samples of itself, scales / 1.6.
@@ -379,6 +478,7 @@ mod tests {
             .iter()
             .enumerate()
             .map(|(i, &strength)| Qualified {
+                time: 0.0,
                 entity: Entity::from_raw_u32(i as u32).unwrap(),
                 strength,
             })
@@ -451,8 +551,8 @@ mod tests {
         let grads = [1e-4, 5e-4, 2e-4, 9e-4];
         let (mut vad, mut plain) = (GradAccum::default(), GradAccum::default());
         for g in grads {
-            accumulate(&mut vad, g, 1.0, 1.0, true);
-            accumulate(&mut plain, g, 0.37, 1.0, false);
+            accumulate(&mut vad, sample(g, 1.0, 0.0), true);
+            accumulate(&mut plain, sample(g, 0.37, 0.0), false);
         }
         let mean = grads.iter().sum::<f32>() / grads.len() as f32;
         assert!((mean_gradient(&vad) - mean).abs() < 1e-9);
@@ -465,11 +565,130 @@ mod tests {
         let mut vad = GradAccum::default();
         let mut plain = GradAccum::default();
         for (g, sigma) in [(8e-4, 0.9), (0.0, 0.01), (0.0, 0.01), (0.0, 0.01)] {
-            accumulate(&mut vad, g, sigma, 1.0, true);
-            accumulate(&mut plain, g, sigma, 1.0, false);
+            accumulate(&mut vad, sample(g, sigma, 0.0), true);
+            accumulate(&mut plain, sample(g, sigma, 0.0), false);
         }
         assert!((mean_gradient(&plain) - 2e-4).abs() < 1e-9);
         assert!(mean_gradient(&vad) > 7.5e-4);
+    }
+
+    fn sample(grad_norm: f32, sigma: f32, offset: f32) -> GradSample {
+        GradSample {
+            grad_norm,
+            sigma,
+            lifespan: 1.0,
+            offset,
+        }
+    }
+
+    /// The gradient's time is the w·g-weighted mean of the views' times, the centre when no
+    /// gradient arrived, and stays in [0, 1].
+    #[test]
+    fn gradient_time_is_the_weighted_mean_of_the_views_times() {
+        let center = 0.4;
+        let mut accum = GradAccum::default();
+        // Views at t = 0.5 (g 3e-4, σ 0.5) and t = 0.3 (g 1e-4, σ 0.5): weights 1.5e-4, 0.5e-4.
+        accumulate(&mut accum, sample(3e-4, 0.5, 0.1), true);
+        accumulate(&mut accum, sample(1e-4, 0.5, -0.1), true);
+        // A view without gradient does not move it.
+        accumulate(&mut accum, sample(0.0, 0.9, 0.5), true);
+        let expected = (1.5e-4 * 0.5 + 0.5e-4 * 0.3) / 2e-4;
+        assert!((gradient_time(&accum, center) - expected).abs() < 1e-6);
+        assert_eq!(gradient_time(&GradAccum::default(), center), center);
+        let mut late = GradAccum::default();
+        accumulate(&mut late, sample(1e-4, 1.0, 0.9), true);
+        assert_eq!(gradient_time(&late, center), 1.0);
+    }
+
+    /// A clone re-centred at t_g has, at t_g, the parent's position, rotation and scale (with
+    /// TOW, a slow motion basis, per-frequency phases and scale motion), the parent's temporal
+    /// width, and its centre at t_g.
+    #[test]
+    fn a_recentred_clone_matches_its_parent_at_the_new_centre() {
+        use crate::model::deform::{MotionBasis, TemporalOpacity, scale_at};
+        use crate::model::warp::TimeWarp;
+        use crate::scene::{ModelConfig, PhaseModel, TrainConfig};
+        let model = ModelConfig {
+            phase: PhaseModel::PerFrequency,
+            motion_period: 2.0,
+            scale_motion: true,
+            ..ModelConfig::default()
+        };
+        let settings = Settings {
+            model,
+            densify: DensifyConfig::default(),
+            train: TrainConfig::default(),
+            frame_count: 150,
+            extent: 1.0,
+            warp: TimeWarp::tow(50.0, 150, 0.75),
+            opacity: TemporalOpacity::Rbf,
+        };
+        let position = Position {
+            mean: [0.3, -1.2, 2.0],
+        };
+        let fourier = Fourier {
+            cos: [
+                [0.1, -0.2, 0.05],
+                [0.02, 0.0, -0.04],
+                [0.0; 3],
+                [0.01, 0.01, 0.01],
+            ],
+            sin: [
+                [-0.05, 0.1, 0.2],
+                [0.0, 0.03, 0.0],
+                [0.02, 0.0, 0.0],
+                [0.0; 3],
+            ],
+            phase: [0.3, -1.0, 2.0, 0.5],
+        };
+        let temporal = Temporal {
+            center: 0.4,
+            scale: [2.5, 0.0],
+        };
+        let rotation = Rotation {
+            c0: [0.9, 0.1, -0.2, 0.3],
+            c1: [0.05, -0.3, 0.2, 0.1],
+        };
+        let scale = Scale {
+            d0: [-3.0, -2.5, -4.0],
+            d1: [0.4, -0.2, 0.1],
+        };
+        let basis: MotionBasis = settings.motion_basis();
+        let pose = |p: &Position, f: &Fourier, t: &Temporal, r: &Rotation, s: &Scale, at: f32| {
+            let dtw = settings.warp.apply(at - t.center);
+            let mean =
+                Vec3::from_array(p.mean) + fourier_offset(&f.cos, &f.sin, &f.phase, basis, dtw);
+            (
+                mean,
+                rotation_at(r.c0, r.c1, dtw),
+                scale_at(s.d0, s.d1, dtw),
+            )
+        };
+        for time in [0.0, 0.25, 0.43, 0.9, 1.0] {
+            let parent = Parent {
+                position: &position,
+                fourier: &fourier,
+                temporal: &temporal,
+                rotation: &rotation,
+                scale: &scale,
+            };
+            let (p, t, r, s) = recentred(parent, time, &settings);
+            assert_eq!(t.center, time);
+            assert_eq!(t.scale, temporal.scale);
+            let want = pose(&position, &fourier, &temporal, &rotation, &scale, time);
+            let got = pose(&p, &fourier, &t, &r, &s, time);
+            assert!(
+                (want.0 - got.0).length() < 1e-5,
+                "{time}: {want:?} vs {got:?}"
+            );
+            for k in 0..4 {
+                assert!(
+                    (want.1[k] - got.1[k]).abs() < 1e-5,
+                    "{time}: {want:?} vs {got:?}"
+                );
+            }
+            assert!((want.2 - got.2).abs().max_element() < 1e-5 * want.2.max_element());
+        }
     }
 
     /// TAT equals τ_pos at full lifespan and decreases for shorter lifespans (both forms).

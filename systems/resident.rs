@@ -377,8 +377,12 @@ fn put_rates<P: Param>(rates: &mut [Vec<f32>; SECTIONS], values: &[f32]) {
 }
 
 /// Adds this iteration's view to the resident densification statistics.
-pub fn resident_stats(settings: Res<Settings>, mut gpu: ResMut<GpuTraining>) {
-    gpu.accumulate_stats(&StatsConfig::from_settings(&settings));
+pub fn resident_stats(
+    settings: Res<Settings>,
+    sample: Res<ViewSample>,
+    mut gpu: ResMut<GpuTraining>,
+) {
+    gpu.accumulate_stats(&StatsConfig::from_settings(&settings, sample.time));
 }
 
 /// Host scratch of [`resident_sync`].

@@ -132,6 +132,7 @@ fn marks_after_one_step_at_the_cap(policy: CapPolicy) -> (Vec<usize>, usize) {
             lifespan_sum: 1.0,
             count: 1,
             max_radius: 1.0,
+            weighted_offset: 0.0,
         };
     }
     world

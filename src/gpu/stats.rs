@@ -1,7 +1,7 @@
 //! Densification statistics on the GPU (`shaders/stats.wgsl`): what
 //! [`crate::systems::densify::accumulate_stats`] adds per Gaussian and view (visibility,
 //! optional minimum opacity, VAD weighting by σ(t), TAT lifespan, count, largest screen
-//! radius), on per-slot GPU buffers.
+//! radius, gradient-weighted time offset), on per-slot GPU buffers.
 
 use bytemuck::{Pod, Zeroable};
 
@@ -30,16 +30,19 @@ pub struct StatsConfig {
     pub model: TemporalOpacity,
     /// The temporal warp (for the lifespan).
     pub warp: TimeWarp,
+    /// The view's normalised time (for the gradient-weighted time offset).
+    pub time: f32,
 }
 
 impl StatsConfig {
-    /// The configuration `accumulate_stats` reads from `settings`.
-    pub fn from_settings(settings: &Settings) -> Self {
+    /// The configuration `accumulate_stats` reads from `settings`, for a view at `time`.
+    pub fn from_settings(settings: &Settings, time: f32) -> Self {
         Self {
             vad: settings.densify.vad,
             min_opacity: settings.densify.vad_min_opacity,
             model: settings.opacity,
             warp: settings.warp,
+            time,
         }
     }
 }
@@ -60,6 +63,8 @@ struct StatsParams {
     s_near: f32,
     s_far: f32,
     lambda: f32,
+    time: f32,
+    _pad: [u32; 3],
 }
 
 impl StatsParams {
@@ -90,6 +95,8 @@ impl StatsParams {
                 1.0
             },
             lambda,
+            time: config.time,
+            _pad: [0; 3],
         }
     }
 }

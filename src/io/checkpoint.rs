@@ -3,7 +3,8 @@
 //! A checkpoint is a folder of three files, each written atomically:
 //! - `tensors.safetensors`: per Gaussian, every parameter component (as in the model file),
 //!   both Adam moments of every group (`adam.m.<group>`, `adam.v.<group>`) and the
-//!   densification statistics (`grad_accum`: Σw·g, Σw, Σψ̄, max radius; `grad_accum_count`).
+//!   densification statistics (`grad_accum`: Σw·g, Σw, Σψ̄, max radius; `grad_accum_count`;
+//!   `grad_accum_offset`: Σw·g·Δt, absent from older checkpoints, which read it as 0).
 //!   Adam's step count is the iteration (bias correction uses the global step).
 //! - `log.json`: the run's history for the report ([`TrainingLog`]).
 //! - `state.ron`, written last: the scene settings, the counters (iteration, SH degree, last
@@ -367,17 +368,19 @@ struct LogFile {
     log: TrainingLog,
 }
 
-/// The densification statistics: `grad_accum` (f32: Σw·g, Σw, Σψ̄, max radius) and
-/// `grad_accum_count` (u32).
-fn accum_tensors(gaussians: &[GaussianState]) -> [NamedTensor; 2] {
+/// The densification statistics: `grad_accum` (f32: Σw·g, Σw, Σψ̄, max radius),
+/// `grad_accum_count` (u32) and `grad_accum_offset` (f32: Σw·g·Δt).
+fn accum_tensors(gaussians: &[GaussianState]) -> [NamedTensor; 3] {
     let mut floats = Vec::with_capacity(gaussians.len() * 16);
     let mut counts = Vec::with_capacity(gaussians.len() * 4);
+    let mut offsets = Vec::with_capacity(gaussians.len() * 4);
     for g in gaussians {
         let a = &g.accum;
         for v in [a.weighted_grad, a.weight, a.lifespan_sum, a.max_radius] {
             floats.extend_from_slice(&v.to_le_bytes());
         }
         counts.extend_from_slice(&a.count.to_le_bytes());
+        offsets.extend_from_slice(&a.weighted_offset.to_le_bytes());
     }
     [
         NamedTensor {
@@ -391,6 +394,12 @@ fn accum_tensors(gaussians: &[GaussianState]) -> [NamedTensor; 2] {
             dtype: Dtype::U32,
             width: 1,
             bytes: counts,
+        },
+        NamedTensor {
+            name: "grad_accum_offset".into(),
+            dtype: Dtype::F32,
+            width: 1,
+            bytes: offsets,
         },
     ]
 }
@@ -478,6 +487,13 @@ fn read_gaussian_states(
     let v = read_param_tensors(path, &tensors, "adam.v.", Some(n))?;
     let floats = raw_tensor(&tensors, "grad_accum", Dtype::F32, [n, 4]).map_err(&invalid)?;
     let counts = raw_tensor(&tensors, "grad_accum_count", Dtype::U32, [n, 1]).map_err(&invalid)?;
+    // Checkpoints written before `densify.clone_time` have no offsets: their sums start at 0.
+    let offsets = match tensors.tensor("grad_accum_offset") {
+        Ok(_) => {
+            Some(raw_tensor(&tensors, "grad_accum_offset", Dtype::F32, [n, 1]).map_err(&invalid)?)
+        }
+        Err(_) => None,
+    };
     let word = |bytes: &[u8], i: usize| -> [u8; 4] {
         bytes[4 * i..4 * i + 4].try_into().expect("4 bytes")
     };
@@ -492,6 +508,7 @@ fn read_gaussian_states(
                 lifespan_sum: f32::from_le_bytes(word(floats, 4 * i + 2)),
                 max_radius: f32::from_le_bytes(word(floats, 4 * i + 3)),
                 count: u32::from_le_bytes(word(counts, i)),
+                weighted_offset: offsets.map_or(0.0, |o| f32::from_le_bytes(word(o, i))),
             },
         })
         .collect())

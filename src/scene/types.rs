@@ -316,6 +316,21 @@ pub struct DensifyConfig {
     pub max_gaussians: usize,
     /// Which Gaussians are densified when more qualify than the cap leaves room for.
     pub at_cap: CapPolicy,
+    /// The temporal centre of a clone: the parent's (paper) or where its gradient came from.
+    pub clone_time: CloneTime,
+}
+
+/// Where in time a clone is centred. Not part of the paper, whose children inherit t_i.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub enum CloneTime {
+    /// The parent's temporal centre t_i (the paper: "children inherit t_i").
+    #[default]
+    Parent,
+    /// The mean time of the parent's gradient samples since the last step, weighted as ḡ is
+    /// (Σ w·g·t / Σ w·g), clamped to [0, 1]. The clone is moved so that at that time its
+    /// position, rotation and scale equal the parent's: it adds coverage where the parent's
+    /// lifespan is thin instead of doubling it at the anchor. Splits keep the parent's centre.
+    Gradient,
 }
 
 /// How a densification step chooses when more Gaussians qualify for cloning or splitting than
@@ -355,6 +370,7 @@ impl Default for DensifyConfig {
             prune_big: false,
             max_gaussians: 5_000_000,
             at_cap: CapPolicy::InOrder,
+            clone_time: CloneTime::Parent,
         }
     }
 }
