@@ -8,7 +8,7 @@ use std::sync::Arc;
 use tadgs::data::Dataset;
 use tadgs::io::checkpoint::{Checkpoint, LOG_FILE, STATE_FILE, TENSORS_FILE};
 use tadgs::report::{StepRecord, TrainingLog};
-use tadgs::scene::SceneConfig;
+use tadgs::scene::{CloneTime, SceneConfig};
 use tadgs::train::Trainer;
 
 /// A 6-frame, 48×36 demo scene: 36 iterations, densification every 10 from 10 and an opacity
@@ -41,13 +41,16 @@ fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
 /// half used, so each of them matters.
 ///
 /// Checked with and without per-camera exposure compensation, whose corrections and Adam
-/// moments must survive the stop too.
+/// moments must survive the stop too, and with clones centred at their gradient's time, which
+/// reads the statistics' time offsets.
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
     let (config, dataset) = tiny_scene();
     check_resume(&config, &dataset);
     let mut config = config;
     config.train.camera_exposure = true;
+    check_resume(&config, &dataset);
+    config.densify.clone_time = CloneTime::Gradient;
     check_resume(&config, &dataset);
 }
 
@@ -126,6 +129,42 @@ fn saved_checkpoint(dir: &std::path::Path, steps: u32) -> usize {
         .save(dir)
         .unwrap();
     trainer.gaussian_count()
+}
+
+/// A checkpoint written before `densify.clone_time` has no `grad_accum_offset` tensor: it
+/// loads, with every time offset at 0 and everything else as saved.
+#[test]
+fn checkpoint_without_time_offsets_loads_with_zero_offsets() {
+    let dir = tempfile::tempdir().unwrap();
+    saved_checkpoint(dir.path(), 17);
+    let saved = Checkpoint::load(dir.path()).unwrap();
+    assert!(
+        saved
+            .gaussians
+            .iter()
+            .any(|g| g.accum.weighted_offset != 0.0),
+        "the offsets should have been accumulated before the stop"
+    );
+    let path = dir.path().join(TENSORS_FILE);
+    let bytes = std::fs::read(&path).unwrap();
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let kept: Vec<_> = tensors
+        .tensors()
+        .into_iter()
+        .filter(|(name, _)| name != "grad_accum_offset")
+        .collect();
+    assert_eq!(kept.len() + 1, tensors.len(), "the offsets were saved");
+    safetensors::serialize_to_file(kept, header.metadata().clone(), &path).unwrap();
+    let old = Checkpoint::load(dir.path()).unwrap();
+    assert_eq!(old.state, saved.state);
+    assert_eq!(old.gaussians.len(), saved.gaussians.len());
+    for (a, b) in old.gaussians.iter().zip(&saved.gaussians) {
+        assert_eq!(a.accum.weighted_offset, 0.0);
+        let mut b = b.clone();
+        b.accum.weighted_offset = 0.0;
+        assert_eq!(*a, b);
+    }
 }
 
 /// Property: a truncated tensor file is an error naming that file, not a panic.
