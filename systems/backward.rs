@@ -11,7 +11,7 @@ use crate::components::{
 use crate::gpu::GpuRasterizer;
 use crate::model::deform::{
     centre_gradient, fourier_offset_backward, polynomial_dtw_backward, rotation_at_backward,
-    scale_at_backward, temporal_opacity_backward, temporal_opacity_dtw_backward,
+    scale_at_backward, scale_velocity, temporal_opacity_backward, temporal_opacity_dtw_backward,
 };
 use crate::model::project::project_backward;
 use crate::model::sh::sh_to_rgb_backward;
@@ -157,7 +157,7 @@ pub fn backward_parameters(
                 d_mean,
             );
             let (d_c0, d_c1) = rotation_at_backward(rotation.c0, rotation.c1, dtw, d.rotation);
-            let scale_velocity = if scale_motion { scale.d1 } else { [0.0; 3] };
+            let scale_velocity = scale_velocity(scale.d1, scale_motion);
             let (d_d0, mut d_d1) = scale_at_backward(scale.d0, scale_velocity, dtw, d.scale);
             if !scale_motion {
                 d_d1 = [0.0; 3];

@@ -4,7 +4,9 @@ use bevy_ecs::prelude::*;
 use glam::Vec3;
 
 use crate::components::{Deformed, ParamRefs, WarpedTime, sh_coefficients};
-use crate::model::deform::{fourier_offset, rotation_at, scale_at, temporal_opacity};
+use crate::model::deform::{
+    fourier_offset, rotation_at, scale_at, scale_velocity, temporal_opacity,
+};
 use crate::model::sh::sh_to_rgb;
 use crate::resources::{Settings, TrainState, ViewSample};
 
@@ -28,7 +30,7 @@ pub fn deform(
             let dtw = warped.dtw;
             let mean = Vec3::from_array(pos.mean)
                 + fourier_offset(&fourier.cos, &fourier.sin, &fourier.phase, motion, dtw);
-            let scale_velocity = if scale_motion { scale.d1 } else { [0.0; 3] };
+            let scale_velocity = scale_velocity(scale.d1, scale_motion);
             *out = Deformed {
                 mean: mean.to_array(),
                 rotation: rotation_at(rotation.c0, rotation.c1, dtw),

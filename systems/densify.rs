@@ -11,7 +11,9 @@ use crate::components::{
     Adam, Deformed, Fourier, Grad, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot,
     Temporal, WarpedTime, each_param,
 };
-use crate::model::deform::{fourier_offset, lifespan_fraction, logit, rotation_at, sigmoid};
+use crate::model::deform::{
+    fourier_offset, lifespan_fraction, logit, rotation_at, scale_velocity, sigmoid,
+};
 use crate::raster::{Splat, SplatGrad};
 use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
 use crate::scene::{CapPolicy, CloneTime, DensifyConfig, TatForm};
@@ -231,11 +233,7 @@ pub fn recentred(
     let motion = |dtw| fourier_offset(&f.cos, &f.sin, &f.phase, basis, dtw);
     let mean = Vec3::from_array(parent.position.mean) + motion(dtw) - motion(0.0);
     let (r, s) = (parent.rotation, parent.scale);
-    let scale_velocity = if settings.model.scale_motion {
-        s.d1
-    } else {
-        [0.0; 3]
-    };
+    let velocity = scale_velocity(s.d1, settings.model.scale_motion);
     (
         Position {
             mean: mean.to_array(),
@@ -249,7 +247,7 @@ pub fn recentred(
             c1: r.c1,
         },
         Scale {
-            d0: std::array::from_fn(|k| s.d0[k] + scale_velocity[k] * dtw),
+            d0: std::array::from_fn(|k| s.d0[k] + velocity[k] * dtw),
             d1: s.d1,
         },
     )

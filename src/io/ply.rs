@@ -23,7 +23,7 @@ use crate::components::{
     Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal, split_sh,
 };
 use crate::io::model::Model;
-use crate::model::deform::{fourier_offset, logit, rotation_at, temporal_opacity};
+use crate::model::deform::{fourier_offset, logit, rotation_at, scale_velocity, temporal_opacity};
 use crate::model::sh::{SH_COEFFS, coeff_count};
 use crate::resources::Settings;
 use crate::scene::{ModelConfig, OpacityModel};
@@ -394,11 +394,7 @@ pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32)
             let f = &g.fourier;
             let mean =
                 Vec3::from(g.position.mean) + fourier_offset(&f.cos, &f.sin, &f.phase, motion, dtw);
-            let velocity = if settings.model.scale_motion {
-                g.scale.d1
-            } else {
-                [0.0; 3]
-            };
+            let velocity = scale_velocity(g.scale.d1, settings.model.scale_motion);
             Some(StaticSplat {
                 mean: mean.to_array(),
                 sh: g.sh(),

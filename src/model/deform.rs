@@ -365,6 +365,13 @@ fn dot4(a: [f32; 4], b: [f32; 4]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
 }
 
+/// The log-scale velocity the model uses: d1 with `model.scale_motion`, else 0 (the authors'
+/// constant scale).
+#[inline]
+pub fn scale_velocity(d1: [f32; 3], scale_motion: bool) -> [f32; 3] {
+    if scale_motion { d1 } else { [0.0; 3] }
+}
+
 /// Scale at time t: exp(d0 + d1·dtw) per axis.
 #[inline]
 pub fn scale_at(d0: [f32; 3], d1: [f32; 3], dtw: f32) -> Vec3 {
