@@ -69,3 +69,4 @@ pub mod scene;
 #[path = "../systems/mod.rs"]
 pub mod systems;
 pub mod train;
+pub mod view;

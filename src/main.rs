@@ -49,6 +49,9 @@ enum Command {
     /// Time every stage of a training iteration and print a table: on the fixed benchmark
     /// scene, or on a real scene (--scene) or run (--checkpoint) at its own size.
     Bench(cli::bench::BenchArgs),
+    /// Serve an interactive 4D viewer in the browser for a run, a model file or a splat PLY:
+    /// orbit, pan and zoom, a time slider, dataset cameras; frames rendered by tadgs itself.
+    View(cli::view::ViewCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -118,6 +121,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Masks(args) => cli::eval::masks(args, ui),
         Command::Info(args) => cli::info::info(args),
         Command::Bench(args) => cli::bench::bench(&args),
+        Command::View(args) => cli::view::view(args, ui),
     }
 }
 
@@ -308,6 +312,36 @@ mod tests {
         };
         assert_eq!(m.flow_threshold, 1.5);
 
+        let Command::View(v) = parse(&[
+            "view",
+            "run",
+            "--host",
+            "0.0.0.0",
+            "--port",
+            "8080",
+            "--background",
+            "1,1,1",
+            "--up",
+            "0,1,0",
+            "--backend",
+            "gpu",
+            "--no-data",
+            "--set",
+            "k=v",
+        ])
+        .command
+        else {
+            panic!("view")
+        };
+        assert_eq!((v.host.to_string(), v.port), ("0.0.0.0".to_string(), 8080));
+        assert_eq!((v.backend.as_str(), v.no_data), ("gpu", true));
+        assert_eq!(v.up, Some(glam::Vec3::Y));
+        let Command::Train(t) = parse(&["train", "s.ron", "--view", "--view-port", "9000"]).command
+        else {
+            panic!("train")
+        };
+        assert_eq!((t.view, t.view_port), (true, 9000));
+
         let Command::Info(i) = parse(&["info", "s.ron", "--set", "k=v", "--data"]).command else {
             panic!("info")
         };
@@ -324,6 +358,8 @@ mod tests {
             vec!["tadgs", "render", "m", "--size", "640"],
             vec!["tadgs", "render", "m", "--background", "2,0,0"],
             vec!["tadgs", "export", "m", "--format", "obj"],
+            vec!["tadgs", "view", "m", "--host", "localhost:80"],
+            vec!["tadgs", "train", "s.ron", "--view-port", "9000"],
         ] {
             assert!(Cli::try_parse_from(&args).is_err(), "{args:?} parsed");
         }

@@ -9,6 +9,7 @@ pub mod input;
 pub mod render;
 pub mod run_folder;
 pub mod train;
+pub mod view;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

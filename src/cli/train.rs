@@ -13,9 +13,11 @@ use tadgs::report::{DensifyRecord, FrameScores, HeldoutRecord, Report, StepRecor
 use tadgs::resources::CameraExposures;
 use tadgs::scene::{SceneConfig, apply_overrides};
 use tadgs::train::Trainer;
+use tadgs::view::TrainingStatus;
 
 use super::eval::{EvalArgs, RunSummary, evaluate, write_metrics};
 use super::run_folder::{RunLock, refuse_existing_run, remove_run_outputs, same_folder};
+use super::view::LiveView;
 use super::{
     Ui, backend_kind, checkpoint_and_run, load_dataset, load_with_overrides, scene_text,
     set_backend, write_atomic,
@@ -104,6 +106,14 @@ pub struct TrainCommand {
     /// DX12 or GL; no CUDA needed).
     #[arg(long, value_parser = ["cpu", "gpu"])]
     pub backend: Option<String>,
+    /// Serve the viewer of `tadgs view` on 127.0.0.1 while training (its URL is printed): the
+    /// page shows the model as it trains, replaced once a second while a page is open, with
+    /// the iteration, loss and PSNR. Renders on the CPU.
+    #[arg(long)]
+    pub view: bool,
+    /// Port of the --view server; 0 picks a free one.
+    #[arg(long, default_value_t = 0, value_name = "PORT", requires = "view")]
+    pub view_port: u16,
     #[command(flatten)]
     pub eval: EvalArgs,
 }
@@ -213,12 +223,23 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
             (trainer, checkpoint.log)
         }
     };
+    let live = if args.view {
+        Some(LiveView::start(
+            &config,
+            &dataset,
+            &mut trainer,
+            args.view_port,
+        )?)
+    } else {
+        None
+    };
     let mut run = Run {
         config: &config,
         output: &output,
         trainer: &mut trainer,
         log,
         ui,
+        live,
     };
     if !run.train_until(args.until)? {
         return Ok(());
@@ -269,6 +290,8 @@ struct Run<'a> {
     trainer: &'a mut Trainer,
     log: TrainingLog,
     ui: Ui,
+    /// The viewer of `--view`.
+    live: Option<LiveView>,
 }
 
 impl Run<'_> {
@@ -364,6 +387,17 @@ impl Run<'_> {
                     (i - start) as f32 / seconds,
                     seconds
                 );
+            }
+            if let Some(live) = &mut self.live {
+                let status = TrainingStatus {
+                    iteration: i,
+                    iterations,
+                    loss: self.trainer.state().loss.total,
+                    psnr: smoothed_psnr,
+                    gaussians: gaussians as usize,
+                    shown_iteration: 0,
+                };
+                live.update(self.trainer, status);
             }
             let every = self.config.train.eval_interval;
             if every > 0 && i % every == 0 && i < iterations {
