@@ -5,41 +5,19 @@
 mod common;
 #[path = "common/gpu.rs"]
 mod gpu;
+#[path = "common/cli.rs"]
+mod tiny;
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
+
+use tiny::{tadgs, tiny_demo_scene};
 
 use tadgs::components::Param;
-use tadgs::scene::{DataSource, load_scene};
-
-fn tadgs(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tadgs"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("the tadgs binary runs")
-}
 
 /// The demo scene shrunk to 6 frames at 48×36 and 40 iterations, written to `dir`.
 fn tiny_scene(dir: &Path) -> std::path::PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut config = load_scene(&root.join("scenes/demo.ron")).expect("demo scene loads");
-    let DataSource::Synthetic(synthetic) = &mut config.data else {
-        panic!("the demo is synthetic");
-    };
-    synthetic.frames = 6;
-    synthetic.width = 48;
-    synthetic.height = 36;
-    synthetic.supersample = 1;
-    config.init.points_per_anchor = 200;
-    config.init.anchor_spacing = 3;
-    config.train.iterations = 40;
-    config.densify.from_iter = 10;
-    config.densify.interval = 10;
-    let path = dir.join("tiny.ron");
-    let text = ron::ser::to_string_pretty(&config, ron::ser::PrettyConfig::default()).unwrap();
-    std::fs::write(&path, text).unwrap();
-    path
+    tiny_demo_scene(dir, (48, 36), 200, 40, 10)
 }
 
 fn summary(run: &Path) -> serde_json::Value {

@@ -12,6 +12,8 @@
 
 #[path = "common/cdp.rs"]
 mod cdp;
+#[path = "common/cli.rs"]
+mod tiny;
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -22,15 +24,7 @@ use std::time::{Duration, Instant};
 
 use base64::Engine;
 use serde_json::{Value, json};
-use tadgs::scene::{DataSource, load_scene};
-
-fn tadgs(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tadgs"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("the tadgs binary runs")
-}
+use tiny::{tadgs, tiny_demo_scene};
 
 fn check(out: Output) -> Output {
     assert!(
@@ -75,22 +69,7 @@ fn scratch(name: &str) -> PathBuf {
 
 /// The demo scene at 64×48 over 6 frames, 60 iterations, written into `dir`.
 fn tiny_scene(dir: &Path) -> PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut config = load_scene(&root.join("scenes/demo.ron")).expect("demo scene loads");
-    let DataSource::Synthetic(synthetic) = &mut config.data else {
-        panic!("the demo is synthetic");
-    };
-    (synthetic.frames, synthetic.width, synthetic.height) = (6, 64, 48);
-    synthetic.supersample = 1;
-    config.init.points_per_anchor = 400;
-    config.init.anchor_spacing = 3;
-    config.train.iterations = 60;
-    config.densify.from_iter = 20;
-    config.densify.interval = 20;
-    let scene = dir.join("tiny.ron");
-    let text = ron::ser::to_string_pretty(&config, Default::default()).unwrap();
-    std::fs::write(&scene, text).unwrap();
-    scene
+    tiny_demo_scene(dir, (64, 48), 400, 60, 20)
 }
 
 /// A `tadgs view` process, stopped when dropped.
