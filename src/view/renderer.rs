@@ -16,6 +16,7 @@ use crate::gpu::GpuError;
 use crate::io::camera_path::CameraSpec;
 use crate::io::image::Image;
 use crate::io::model::Model;
+use crate::model::project::MIN_OPACITY;
 use crate::resources::{SplatBuffers, TrainState, ViewSample};
 use crate::scene::SceneConfig;
 use crate::systems::render_schedule;
@@ -224,13 +225,12 @@ impl Renderer {
         self.schedule.run(&mut self.world);
         let render_seconds = start.elapsed().as_secs_f64();
         let buffers = self.world.resource::<SplatBuffers>();
-        let threshold = 1.0 / 255.0;
         let counted = buffers.deformed.len() == self.total && self.total > 0;
         let alive = counted.then(|| {
             buffers
                 .deformed
                 .iter()
-                .filter(|d| d.opacity >= threshold)
+                .filter(|d| d.opacity >= MIN_OPACITY)
                 .count()
         });
         let drawn = (counted && buffers.splats.len() == self.total)
