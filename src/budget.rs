@@ -64,8 +64,11 @@ pub fn bytes_per_gaussian(sh_degree: u32) -> usize {
 /// The memory a run needs, in bytes, by part.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MemoryEstimate {
-    /// Decoded images and masks of the dataset.
+    /// Decoded images and masks the dataset holds in memory.
     pub images: u64,
+    /// The cache that streamed images are read through (`data.cache_mb`): empty when the
+    /// estimate is made, full soon after.
+    pub image_cache: u64,
     /// Per-pixel buffers for the largest camera.
     pub pixel_buffers: u64,
     /// Bytes per Gaussian, headroom included.
@@ -110,6 +113,7 @@ impl MemoryEstimate {
         let factor = u64::from(scene.train.coarse_downscale.max(1));
         let images = dataset.memory_bytes() as u64;
         Self {
+            image_cache: dataset.cache().map_or(0, |cache| cache.capacity() as u64),
             images: images
                 + if factor > 1 {
                     images / (factor * factor)
@@ -139,6 +143,7 @@ impl MemoryEstimate {
     /// an error when the initial Gaussians do not fit; otherwise the population cap to use,
     /// lower than `max_gaussians` when the cap itself would not fit.
     pub fn check(&self, available: u64, camera: (u32, u32)) -> Result<u64, BudgetError> {
+        let available = available.saturating_sub(self.image_cache);
         let fits = self.gaussians_that_fit(available);
         if self.working_bytes(self.initial_gaussians) > available {
             return Err(BudgetError {
@@ -161,12 +166,12 @@ impl std::fmt::Display for MemoryEstimate {
             f,
             "memory estimate: images {:.2} GB + per-pixel buffers {:.3} GB + {} B per Gaussian \
              × {} initial Gaussians = {:.2} GB at the start, {:.2} GB at the cap of {} Gaussians",
-            gb(self.images),
+            gb(self.images + self.image_cache),
             gb(self.pixel_buffers),
             self.per_gaussian,
             self.initial_gaussians,
-            gb(self.images + self.working_bytes(self.initial_gaussians)),
-            gb(self.images + self.working_bytes(self.max_gaussians)),
+            gb(self.images + self.image_cache + self.working_bytes(self.initial_gaussians)),
+            gb(self.images + self.image_cache + self.working_bytes(self.max_gaussians)),
             self.max_gaussians
         )
     }
@@ -209,6 +214,7 @@ mod tests {
     fn estimate() -> MemoryEstimate {
         MemoryEstimate {
             images: 1_000,
+            image_cache: 0,
             pixel_buffers: 10_000,
             per_gaussian: 2_000,
             initial_gaussians: 100,

@@ -193,6 +193,22 @@ impl std::fmt::Display for Fault {
     }
 }
 
+/// A training image that could not be read (a streamed view whose file went missing or
+/// changed): the iteration and the error.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ReadFailure {
+    /// The iteration that needed the image.
+    pub iteration: u32,
+    /// The read error, naming the file.
+    pub message: String,
+}
+
+/// The first training image of the run that could not be read, if any. The loss stage then
+/// reports a non-finite loss, so the numeric guard stops the optimisation as for a
+/// [`NumericFault`].
+#[derive(Resource, Clone, Debug, Default)]
+pub struct ReadFault(pub Option<ReadFailure>);
+
 /// The first numeric fault of the run, if any; while set, Adam and densification are skipped.
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct NumericFault(pub Option<Fault>);

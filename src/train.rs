@@ -76,6 +76,7 @@ pub fn insert_resources(
     world.insert_resource(Rng::seeded(scene.train.seed));
     world.insert_resource(LossImage::default());
     world.insert_resource(NumericFault::default());
+    world.insert_resource(ReadFault::default());
     Ok(())
 }
 
@@ -301,6 +302,17 @@ fn apply_memory_budget(
     Ok(())
 }
 
+/// Why [`Trainer::evaluate`] could not score the held-out views.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// The LPIPS network failed.
+    #[error(transparent)]
+    Lpips(#[from] LpipsError),
+    /// A held-out image could not be read (a streamed view whose file went missing).
+    #[error(transparent)]
+    Data(#[from] DataError),
+}
+
 /// Gaussians this many scene extents away from the cameras have diverged
 /// ([`Trainer::diverged_count`]).
 pub const DIVERGED_EXTENTS: f32 = 1000.0;
@@ -479,6 +491,12 @@ impl Trainer {
         self.world.resource::<NumericFault>().0
     }
 
+    /// The training image that could not be read, if one stopped the run (a streamed view
+    /// whose file went missing); [`Trainer::fault`] is then set too.
+    pub fn read_failure(&self) -> Option<&ReadFailure> {
+        self.world.resource::<ReadFault>().0.as_ref()
+    }
+
     /// Counters of the run.
     pub fn state(&self) -> TrainState {
         *self.world.resource::<TrainState>()
@@ -511,16 +529,20 @@ impl Trainer {
         lpips: Option<&Lpips>,
         masks: &[Option<Vec<bool>>],
         mut on_view: impl FnMut(&ViewScores, &Image, &Image),
-    ) -> Result<Evaluation, LpipsError> {
+    ) -> Result<Evaluation, EvalError> {
         let dataset = self.world.resource::<TrainingViews>().0.clone();
         let mut scores = Vec::with_capacity(dataset.test.len());
         let mut gt = Image::default();
         let mut render_seconds = 0.0;
         for (index, view) in dataset.test.iter().enumerate() {
+            // A streamed next view is decoded while this one renders.
+            if let Some(next) = dataset.test.get(index + 1) {
+                next.image.prefetch();
+            }
             let start = std::time::Instant::now();
             let out = self.render(&dataset.cameras[view.camera], view.time);
             render_seconds += start.elapsed().as_secs_f32();
-            view.copy_image_into(&mut gt);
+            view.copy_image_into(&mut gt)?;
             let mask = masks
                 .get(index)
                 .and_then(Option::as_ref)
@@ -535,17 +557,21 @@ impl Trainer {
         })
     }
 
-    /// Mean PSNR over the held-out views (a quick check during training).
+    /// Mean PSNR over the held-out views (a quick check during training; a streamed view whose
+    /// file cannot be read is left out with a warning, and reported by [`Trainer::evaluate`]).
     pub fn heldout_psnr(&mut self) -> Option<f32> {
         let dataset = self.world.resource::<TrainingViews>().0.clone();
         let mut gt = Image::default();
         let values: Vec<f32> = dataset
             .test
             .iter()
-            .map(|view| {
+            .filter_map(|view| {
+                if let Err(e) = view.copy_image_into(&mut gt) {
+                    tracing::warn!("{e}");
+                    return None;
+                }
                 let out = self.render(&dataset.cameras[view.camera], view.time);
-                view.copy_image_into(&mut gt);
-                psnr(&out.image, &gt)
+                Some(psnr(&out.image, &gt))
             })
             .collect();
         mean(values.into_iter())

@@ -2,10 +2,10 @@
 
 use bevy_ecs::prelude::*;
 
-use crate::metrics::loss::training_loss;
+use crate::metrics::loss::{LossValue, training_loss};
 use crate::resources::{
-    CameraExposures, CoarseViews, LossImage, Settings, SplatBuffers, TrainState, TrainingViews,
-    ViewSample, views_at,
+    CameraExposures, CoarseViews, LossImage, ReadFailure, ReadFault, Settings, SplatBuffers,
+    TrainState, TrainingViews, ViewSample, views_at,
 };
 
 /// Compares the render with the ground-truth image of the sampled view. With
@@ -20,12 +20,27 @@ pub fn loss(
     exposures: Option<ResMut<CameraExposures>>,
     mut loss: ResMut<LossImage>,
     mut state: ResMut<TrainState>,
+    mut read_fault: ResMut<ReadFault>,
 ) {
     let index = sample.view.expect("training views come from the dataset");
     let loss = &mut *loss;
     let dataset = views_at(&views, coarse.as_deref(), state.iteration);
     let view = &dataset.train[index];
-    view.copy_image_into(&mut loss.target);
+    if let Err(error) = view.copy_image_into(&mut loss.target) {
+        // A streamed image that can no longer be read: a non-finite loss makes the numeric
+        // guard stop the run before anything is updated; the trainer reports this error.
+        read_fault.0.get_or_insert(ReadFailure {
+            iteration: state.iteration,
+            message: error.to_string(),
+        });
+        loss.d_color.clear();
+        loss.d_color.resize(buffers.render.image.data.len(), [0.0; 3]);
+        state.loss = LossValue {
+            total: f32::NAN,
+            ..LossValue::default()
+        };
+        return;
+    }
     let render = &buffers.render.image;
     let lambda_dssim = settings.train.lambda_dssim;
     loss.value = match exposures {

@@ -16,6 +16,10 @@ pub fn advance_iteration(settings: Res<Settings>, mut state: ResMut<TrainState>)
     }
 }
 
+/// Training views whose streamed images are decoded ahead of the iteration that needs them
+/// (a no-op for images in memory); a few iterations' worth hides the decoding time.
+pub const PREFETCH_VIEWS: usize = 4;
+
 /// Samples a training view uniformly without replacement within an epoch (from the coarse
 /// views while coarse-to-fine training is in its coarse stage).
 pub fn sample_view(
@@ -35,6 +39,10 @@ pub fn sample_view(
     }
     let index = order.order[order.next];
     order.next += 1;
+    // Streamed images: have the next few of this epoch decoded in the background meanwhile.
+    for &ahead in order.order[order.next..].iter().take(PREFETCH_VIEWS) {
+        dataset.train[ahead].image.prefetch();
+    }
     let view = &dataset.train[index];
     *sample = ViewSample {
         camera: dataset.cameras[view.camera],

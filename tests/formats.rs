@@ -237,7 +237,7 @@ fn n3dv_holds_out_camera_zero_and_keeps_frame_order() {
     for view in dataset.train.iter().chain(&dataset.test) {
         assert_eq!(view.image.dimensions(), (WIDTH, HEIGHT));
         assert_eq!(
-            view.image.get_pixel(3, 2).0,
+            view.image.pixels().unwrap().get_pixel(3, 2).0,
             frame_color(view.camera, view.frame)
         );
         assert!((view.time - view.frame as f32 / (FRAMES - 1) as f32).abs() < 1e-6);
@@ -277,7 +277,7 @@ fn n3dv_downscale_halves_size_and_focal() {
     let view = &dataset.train[0];
     assert_eq!(view.image.dimensions(), (WIDTH / 2, HEIGHT / 2));
     assert_eq!(
-        view.image.get_pixel(1, 1).0,
+        view.image.pixels().unwrap().get_pixel(1, 1).0,
         frame_color(view.camera, view.frame)
     );
     // The projection of a point scales with the image: half the offset from the centre.
@@ -341,7 +341,7 @@ fn n3dv_reads_mp4_videos_with_ffmpeg() {
     assert_eq!((camera.fx, camera.cx, camera.cy), (5.0, 4.0, 3.0));
     for view in dataset.train.iter().chain(&dataset.test) {
         let expected = frame_color(view.camera, view.frame);
-        let found = view.image.get_pixel(4, 3).0;
+        let found = view.image.pixels().unwrap().get_pixel(4, 3).0;
         for (f, e) in found.iter().zip(expected) {
             assert!(
                 f.abs_diff(e) <= 12,
@@ -434,6 +434,63 @@ fn n3dv_rejects_frames_of_different_sizes() {
     image::RgbImage::new(WIDTH + 2, HEIGHT).save(&odd).unwrap();
     let error = n3dv::load(&source(dir.path(), 1)).unwrap_err();
     assert_error_mentions(&error, "cam01/000002.png", &["14×8", "12×8"]);
+}
+
+/// Frame folders streamed through a cache (`cache_mb`) read as the same views, cameras and
+/// pixels as loaded ones, at full size and downscaled; nothing is decoded until a view's
+/// pixels are asked for, and the streamed dataset holds no image bytes itself.
+#[test]
+fn n3dv_streamed_frame_folders_match_loaded_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    write_tiny_n3dv(dir.path());
+    for downscale in [1, 2] {
+        let loaded = n3dv::load(&source(dir.path(), downscale)).unwrap();
+        let streamed = n3dv::load(&N3dvSource {
+            cache_mb: Some(0.001),
+            ..source(dir.path(), downscale)
+        })
+        .unwrap();
+        let cache = streamed.cache().expect("streamed").clone();
+        assert_eq!(cache.stats().misses + cache.stats().prefetched, 0);
+        assert_eq!(streamed.memory_bytes(), 0);
+        assert_eq!(loaded.cameras, streamed.cameras);
+        let views = |d: &tadgs::data::Dataset| d.train.iter().chain(&d.test).cloned().collect::<Vec<_>>();
+        for (a, b) in views(&loaded).iter().zip(&views(&streamed)) {
+            assert_eq!((a.camera, a.frame, a.time), (b.camera, b.frame, b.time));
+            assert!(a.image == b.image, "camera {} frame {}", a.camera, a.frame);
+        }
+        assert!(cache.stats().peak_bytes <= 1000);
+    }
+}
+
+/// A frame of the wrong size is refused when a streamed dataset is read (from the file's
+/// header), not later in training, naming the file and both sizes.
+#[test]
+fn n3dv_streamed_frame_of_wrong_size_is_refused_at_load() {
+    let dir = tempfile::tempdir().unwrap();
+    write_tiny_n3dv(dir.path());
+    let odd = dir.path().join("frames/cam01/000002.png");
+    image::RgbImage::new(WIDTH + 2, HEIGHT).save(&odd).unwrap();
+    let error = n3dv::load(&N3dvSource {
+        cache_mb: Some(1.0),
+        ..source(dir.path(), 1)
+    })
+    .unwrap_err();
+    assert_error_mentions(&error, "cam01/000002.png", &["14×8", "12×8"]);
+}
+
+/// A non-positive or non-finite `cache_mb` is a setting error naming the field.
+#[test]
+fn n3dv_cache_mb_must_be_positive() {
+    for bad in [0.0, -5.0, f64::NAN] {
+        let error = N3dvSource {
+            cache_mb: Some(bad),
+            ..N3dvSource::new("x")
+        }
+        .check()
+        .unwrap_err();
+        assert!(error.to_string().contains("cache_mb"), "{error}");
+    }
 }
 
 /// A gap in a camera's frame numbering (it would shift every later frame in time) is an

@@ -407,7 +407,7 @@ fn write_capture(dataset: &Dataset, dir: &Path) {
         for view in views {
             let name = format!("images/c{:03}_f{:04}.png", view.camera, view.frame);
             std::fs::create_dir_all(dir.join("images")).unwrap();
-            view.image.save(dir.join(&name)).unwrap();
+            view.image.pixels().unwrap().save(dir.join(&name)).unwrap();
             let cam = dataset.cameras[view.camera];
             frames.push(json!({
                 "file_path": name,

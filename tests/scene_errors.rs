@@ -503,13 +503,16 @@ fn set_override_sets_nested_fields() {
             foreground_masks: true,
             downscale: 1,
             validation_cameras: None,
+            cache_mb: None,
         }),
     );
     set_override(&mut panoptic, "data.validation_cameras", "Some([5, 22])").unwrap();
+    set_override(&mut panoptic, "data.cache_mb", "Some(512)").unwrap();
     let DataSource::Panoptic(source) = &panoptic.data else {
         panic!("the scene is a Panoptic capture");
     };
     assert_eq!(source.validation_cameras, Some(vec![5, 22]));
+    assert_eq!(source.cache_mb, Some(512.0));
 }
 
 /// Property: an unknown key is rejected with an error naming the key (and, for a typo

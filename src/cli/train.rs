@@ -358,6 +358,16 @@ impl Run<'_> {
                 ))
                 .into());
             }
+            if let Some(failure) = self.trainer.read_failure() {
+                bar.abandon();
+                bail!(
+                    "iteration {}: {}: training stopped before anything was updated; the last \
+                     checkpoint in {} is kept",
+                    failure.iteration,
+                    failure.message,
+                    self.output.join("checkpoint").display()
+                );
+            }
             if let Some(fault) = self.trainer.fault() {
                 bar.abandon();
                 bail!(

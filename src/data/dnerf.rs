@@ -141,7 +141,7 @@ pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
                 camera: camera_index,
                 frame: frame_index,
                 time: frame.time as f32,
-                image,
+                image: image.into(),
                 dynamic_mask: None,
                 foreground: Some(foreground),
             };

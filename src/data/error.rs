@@ -131,6 +131,24 @@ pub fn read_rgb8(path: &Path, expected: Option<(u32, u32)>) -> Result<image::Rgb
     Ok(img)
 }
 
+/// Checks an image file's size from its header, without decoding it (for views read later).
+pub fn check_image_size(path: &Path, expected: (u32, u32)) -> Result<(), DataError> {
+    check_size(path, image_dimensions(path)?, Some(expected))
+}
+
+/// An image file's size from its header, without decoding it.
+pub fn image_dimensions(path: &Path) -> Result<(u32, u32), DataError> {
+    image::ImageReader::open(path)
+        .map_err(|e| DataError::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| DataError::io(path, e))?
+        .into_dimensions()
+        .map_err(|e| DataError::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
+}
+
 /// Reads a mask image (any format; a pixel is set where its first channel is non-zero) and
 /// checks its size when one is expected.
 pub fn read_mask(path: &Path, expected: Option<(u32, u32)>) -> Result<Vec<bool>, DataError> {

@@ -10,19 +10,22 @@ pub mod nerfstudio;
 pub mod panoptic;
 pub mod pointcloud;
 mod settings;
+pub mod stream;
 pub mod synthetic;
 pub mod undistort;
 
 pub use camera::Camera;
 pub use error::DataError;
+pub use stream::{FrameCache, ViewImage};
 
 use crate::io::image::Image;
 
 /// One observed image: which camera saw it, at which frame and normalised time.
 ///
 /// Images are kept as 8-bit RGB (a quarter of the memory of [`Image`]): a 27-camera,
-/// 150-frame capture at 640×360 fits in 2.8 GB. Masks are `width × height` booleans in
-/// row-major order.
+/// 150-frame capture at 640×360 fits in 2.8 GB. Larger captures are streamed from disk
+/// through a bounded cache (`data.cache_mb`, see [`stream`]). Masks are `width × height`
+/// booleans in row-major order.
 #[derive(Clone, Debug)]
 pub struct View {
     /// Index into [`Dataset::cameras`].
@@ -32,8 +35,8 @@ pub struct View {
     /// Normalised time in [0, 1] (usually `frame / (T − 1)`; readers with their own time
     /// stamps, such as D-NeRF, give them exactly).
     pub time: f32,
-    /// The image, of its camera's size.
-    pub image: image::RgbImage,
+    /// The image, of its camera's size: in memory or read from disk on demand.
+    pub image: ViewImage,
     /// Dynamic-region mask for the masked metrics (true = dynamic), where known.
     pub dynamic_mask: Option<Vec<bool>>,
     /// Foreground segmentation (true = foreground), where the dataset ships one; used by
@@ -43,13 +46,16 @@ pub struct View {
 
 impl View {
     /// The image as `f32` RGB in [0, 1] (the 8-bit values divided by 255, not linearised).
-    pub fn to_image(&self) -> Image {
-        Image::from_rgb8(&self.image)
+    /// Fails only for a streamed view whose file can no longer be read.
+    pub fn to_image(&self) -> Result<Image, DataError> {
+        Ok(Image::from_rgb8(&*self.image.pixels()?))
     }
 
-    /// Writes the image into `out` as `f32` RGB, reusing its allocation.
-    pub fn copy_image_into(&self, out: &mut Image) {
-        out.copy_from_rgb8(&self.image);
+    /// Writes the image into `out` as `f32` RGB, reusing its allocation. Fails only for a
+    /// streamed view whose file can no longer be read.
+    pub fn copy_image_into(&self, out: &mut Image) -> Result<(), DataError> {
+        out.copy_from_rgb8(&*self.image.pixels()?);
+        Ok(())
     }
 }
 
@@ -81,7 +87,7 @@ impl Dataset {
     /// A one-camera dataset that sees `image` at every one of `frame_count` frames (for tests,
     /// benches and examples).
     pub fn single_camera(camera: Camera, frame_count: usize, image: &Image) -> Self {
-        let rgb = image.to_rgb8();
+        let rgb = ViewImage::from(image.to_rgb8());
         let train = (0..frame_count)
             .map(|frame| View {
                 camera: 0,
@@ -114,7 +120,7 @@ impl Dataset {
     pub(crate) fn push_camera_frames(
         &mut self,
         camera: usize,
-        images: Vec<image::RgbImage>,
+        images: Vec<impl Into<ViewImage>>,
         held_out: bool,
     ) {
         let frame_count = self.frame_count;
@@ -126,7 +132,7 @@ impl Dataset {
                 camera,
                 frame,
                 time: frame_time(frame, frame_count),
-                image,
+                image: image.into(),
                 dynamic_mask: None,
                 foreground: None,
             });
@@ -153,6 +159,7 @@ impl Dataset {
             .par_iter()
             .map(|view| {
                 let (width, height) = view.image.dimensions();
+                let size = (width / factor, height / factor);
                 let mask = |m: &Option<Vec<bool>>| {
                     m.as_ref()
                         .map(|m| panoptic::downscale_mask(m, width, height, factor))
@@ -161,7 +168,9 @@ impl Dataset {
                     camera: view.camera,
                     frame: view.frame,
                     time: view.time,
-                    image: crate::io::image::box_downscale(&view.image, factor),
+                    image: view
+                        .image
+                        .map(size, move |image| crate::io::image::box_downscale(image, factor)),
                     dynamic_mask: mask(&view.dynamic_mask),
                     foreground: mask(&view.foreground),
                 }
@@ -209,17 +218,27 @@ impl Dataset {
             .find(|v| v.camera == camera && v.frame == frame)
     }
 
-    /// Bytes of image and mask data held.
+    /// Bytes of image and mask data the views hold themselves (streamed images count in
+    /// their cache instead: see [`Dataset::cache`]).
     pub fn memory_bytes(&self) -> usize {
         self.train
             .iter()
             .chain(&self.test)
             .map(|v| {
-                v.image.as_raw().len()
+                v.image.resident_bytes()
                     + v.dynamic_mask.as_ref().map_or(0, Vec::len)
                     + v.foreground.as_ref().map_or(0, Vec::len)
             })
             .sum()
+    }
+
+    /// The cache streamed views are read through, if any view is streamed (readers use one
+    /// cache per dataset).
+    pub fn cache(&self) -> Option<&std::sync::Arc<FrameCache>> {
+        self.train
+            .iter()
+            .chain(&self.test)
+            .find_map(|v| v.image.cache())
     }
 }
 

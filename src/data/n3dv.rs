@@ -27,10 +27,10 @@ use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::{check_downscale, read_rgb8, require_folder};
-use super::settings::check_downscale_factor;
-use super::{Camera, DataError, Dataset};
-use crate::io::image::box_downscale;
+use super::error::{check_downscale, check_image_size, image_dimensions, read_rgb8, require_folder};
+use super::settings::{check_cache_mb, check_downscale_factor};
+use super::{Camera, DataError, Dataset, FrameCache, ViewImage, stream};
+use crate::io::image::{box_downscale, box_downscale_owned};
 use crate::scene::FieldError;
 
 /// Where and how to read an N3DV scene (the `n3dv` source of a RON scene file).
@@ -50,6 +50,11 @@ pub struct N3dvSource {
     /// holds out `cam00`, the centre camera, as in the N3DV benchmark.
     #[serde(default = "default_test_cameras")]
     pub test_cameras: Vec<usize>,
+    /// Stream the frames from disk through a cache of this many megabytes instead of decoding
+    /// them all up front (frame folders only; see `tadgs::data::stream`). `None` (the default)
+    /// loads them all unless they would take more than half the available memory.
+    #[serde(default)]
+    pub cache_mb: Option<f64>,
 }
 
 fn default_downscale() -> u32 {
@@ -73,7 +78,7 @@ impl N3dvSource {
                 "hold out at least one camera",
             ));
         }
-        Ok(())
+        check_cache_mb(self.cache_mb)
     }
 
     /// A source for the scene at `path` with the benchmark's defaults.
@@ -83,6 +88,7 @@ impl N3dvSource {
             frames: None,
             downscale: default_downscale(),
             test_cameras: default_test_cameras(),
+            cache_mb: None,
         }
     }
 }
@@ -117,8 +123,10 @@ impl FrameSource {
 
 /// A camera's frames after loading: their size before downscaling, and the images.
 pub(crate) struct LoadedFrames {
+    /// The frame folder or video they came from (for errors).
+    path: PathBuf,
     full_size: (u32, u32),
-    pub(crate) images: Vec<RgbImage>,
+    pub(crate) images: Vec<ViewImage>,
 }
 
 /// A check and transformation of each full-size frame before it is downscaled, given the file
@@ -170,13 +178,32 @@ pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
         ));
     }
 
-    let (per_camera, frame_count) = load_cameras(
-        root,
-        sources.iter().map(|(_, frames)| frames),
-        source.frames,
-        source.downscale,
-        &|_, _, image| Ok(image),
-    )?;
+    let (per_camera, frame_count) = match streaming_cache(&sources, source)? {
+        Some(cache) => {
+            let per_camera = sources
+                .iter()
+                .map(|(_, frames)| match frames {
+                    FrameSource::Folder(dir) => {
+                        stream_frame_folder(dir, source.frames, source.downscale, &cache)
+                    }
+                    FrameSource::Video(video) => Err(DataError::dataset(
+                        video,
+                        "videos cannot be streamed from disk: extract the frames once \
+                         (ffmpeg -i camXX.mp4 frames/camXX/%06d.png), or leave data.cache_mb \
+                         unset and load the frames into memory",
+                    )),
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            check_frame_counts(root, per_camera, source.frames)?
+        }
+        None => load_cameras(
+            root,
+            sources.iter().map(|(_, frames)| frames),
+            source.frames,
+            source.downscale,
+            &|_, _, image| Ok(image),
+        )?,
+    };
 
     let mut cameras = Vec::with_capacity(poses.len());
     for (index, (pose, frames)) in poses.iter().zip(&per_camera).enumerate() {
@@ -431,21 +458,32 @@ pub(crate) fn load_cameras<'a>(
 ) -> Result<(Vec<LoadedFrames>, usize), DataError> {
     let mut per_camera = Vec::new();
     for (camera, frame_source) in sources.into_iter().enumerate() {
-        let frames = load_frames(frame_source, limit, downscale, &|path, image| {
+        per_camera.push(load_frames(frame_source, limit, downscale, &|path, image| {
             prepare(camera, path, image)
-        })?;
+        })?);
+    }
+    check_frame_counts(root, per_camera, limit)
+}
+
+/// Checks that every camera has the `limit` frames asked for and returns the cameras' frames
+/// with the number all of them have: the shortest camera's, with a warning when they differ.
+fn check_frame_counts(
+    root: &Path,
+    per_camera: Vec<LoadedFrames>,
+    limit: Option<usize>,
+) -> Result<(Vec<LoadedFrames>, usize), DataError> {
+    for frames in &per_camera {
         if let Some(wanted) = limit
             && frames.images.len() < wanted
         {
             return Err(DataError::dataset(
-                frame_source.path(),
+                &frames.path,
                 format!(
                     "has {} frames, but `frames` asks for {wanted}",
                     frames.images.len()
                 ),
             ));
         }
-        per_camera.push(frames);
     }
     let frame_count = per_camera.iter().map(|f| f.images.len()).min().unwrap_or(0);
     let longest = per_camera.iter().map(|f| f.images.len()).max().unwrap_or(0);
@@ -519,16 +557,77 @@ fn load_frame_folder(
     let first = read_rgb8(&files[0], None)?;
     let full_size = first.dimensions();
     check_downscale(&files[0], full_size, downscale)?;
-    let mut images = vec![box_downscale(&prepare(&files[0], first)?, downscale)];
-    let rest: Vec<RgbImage> = files[1..]
+    let mut images = vec![ViewImage::from(box_downscale(&prepare(&files[0], first)?, downscale))];
+    let rest: Vec<ViewImage> = files[1..]
         .par_iter()
         .map(|file| {
             let image = prepare(file, read_rgb8(file, Some(full_size))?)?;
-            Ok(box_downscale(&image, downscale))
+            Ok(box_downscale(&image, downscale).into())
         })
         .collect::<Result<_, DataError>>()?;
     images.extend(rest);
-    Ok(LoadedFrames { full_size, images })
+    Ok(LoadedFrames {
+        path: dir.to_path_buf(),
+        full_size,
+        images,
+    })
+}
+
+/// The frame files of a folder up to `limit`, and their full size (the first frame's).
+fn frame_files(dir: &Path, limit: Option<usize>) -> Result<(Vec<PathBuf>, (u32, u32)), DataError> {
+    let mut files = list_frame_files(dir)?;
+    if let Some(limit) = limit {
+        files.truncate(limit);
+    }
+    let full_size = image_dimensions(&files[0])?;
+    Ok((files, full_size))
+}
+
+/// The cache to stream the frames through (`data.cache_mb`, or the decoded frames would take
+/// more than half the available memory), or `None` to load them. Only frame folders are
+/// measured up front; a scene with videos is loaded unless `cache_mb` is given.
+fn streaming_cache(
+    sources: &[(String, FrameSource)],
+    source: &N3dvSource,
+) -> Result<Option<std::sync::Arc<FrameCache>>, DataError> {
+    let mut total_bytes = 0;
+    for (_, frames) in sources {
+        let FrameSource::Folder(dir) = frames else {
+            return Ok(source.cache_mb.and_then(|mb| stream::plan(Some(mb), 0)));
+        };
+        let (files, (width, height)) = frame_files(dir, source.frames)?;
+        let d = source.downscale;
+        total_bytes += files.len() as u64 * 3 * u64::from(width / d) * u64::from(height / d);
+    }
+    Ok(stream::plan(source.cache_mb, total_bytes))
+}
+
+/// A camera's frame folder as streamed views: each frame's size is checked from its header
+/// now and the pixels decoded when training or evaluation needs them.
+fn stream_frame_folder(
+    dir: &Path,
+    limit: Option<usize>,
+    downscale: u32,
+    cache: &std::sync::Arc<FrameCache>,
+) -> Result<LoadedFrames, DataError> {
+    let (files, full_size) = frame_files(dir, limit)?;
+    check_downscale(&files[0], full_size, downscale)?;
+    let size = (full_size.0 / downscale, full_size.1 / downscale);
+    let images = files
+        .par_iter()
+        .map(|file| {
+            check_image_size(file, full_size)?;
+            let path = file.clone();
+            Ok(ViewImage::streamed(file, size, cache, move || {
+                Ok(box_downscale_owned(read_rgb8(&path, Some(full_size))?, downscale))
+            }))
+        })
+        .collect::<Result<_, DataError>>()?;
+    Ok(LoadedFrames {
+        path: dir.to_path_buf(),
+        full_size,
+        images,
+    })
 }
 
 // ---------------------------------------------------------------------------------------
@@ -643,7 +742,7 @@ fn decode_video(
                 )
                 .expect("buffer holds exactly one frame");
                 match prepare(video, frame) {
-                    Ok(frame) => images.push(box_downscale(&frame, downscale)),
+                    Ok(frame) => images.push(box_downscale(&frame, downscale).into()),
                     Err(error) => {
                         prepare_error = Some(error);
                         break;
@@ -685,7 +784,11 @@ fn decode_video(
     if images.is_empty() {
         return Err(DataError::format(video, "the video has no frames"));
     }
-    Ok(LoadedFrames { full_size, images })
+    Ok(LoadedFrames {
+        path: video.to_path_buf(),
+        full_size,
+        images,
+    })
 }
 
 /// Reads until `buffer` is full or the stream ends; returns the bytes read.

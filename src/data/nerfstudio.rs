@@ -272,7 +272,7 @@ pub fn load(source: &NerfstudioSource) -> Result<Dataset, DataError> {
                 camera: 0,
                 frame: frame_of(time),
                 time: time as f32,
-                image,
+                image: image.into(),
                 dynamic_mask: None,
                 foreground,
             };

@@ -16,10 +16,12 @@ use glam::{DMat3, DMat4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::{check_downscale, read_mask, read_rgb8, read_text, require_folder};
-use super::settings::{self, check_downscale_factor};
-use super::{Camera, DataError, Dataset, View, frame_time};
-use crate::io::image::box_downscale;
+use super::error::{
+    check_downscale, check_image_size, read_mask, read_rgb8, read_text, require_folder,
+};
+use super::settings::{self, check_cache_mb, check_downscale_factor};
+use super::{Camera, DataError, Dataset, View, ViewImage, frame_time, stream};
+use crate::io::image::box_downscale_owned;
 use crate::scene::FieldError;
 
 /// Where and how to read a Dynamic3DGaussians / CMU Panoptic dataset (a scene-file entry).
@@ -51,6 +53,11 @@ pub struct PanopticSource {
     /// default) is the standard split.
     #[serde(default)]
     pub validation_cameras: Option<Vec<u64>>,
+    /// Stream the images from disk through a cache of this many megabytes instead of
+    /// decoding them all up front (see `tadgs::data::stream`). `None` (the default) loads them
+    /// all unless they would take more than half the available memory.
+    #[serde(default)]
+    pub cache_mb: Option<f64>,
 }
 
 impl PanopticSource {
@@ -66,6 +73,7 @@ impl PanopticSource {
             ));
         }
         check_downscale_factor(self.downscale)?;
+        check_cache_mb(self.cache_mb)?;
         if self.validation_cameras.as_ref().is_some_and(Vec::is_empty) {
             return Err(FieldError::new(
                 "validation_cameras",
@@ -84,6 +92,7 @@ impl PanopticSource {
             foreground_masks: true,
             downscale: 1,
             validation_cameras: None,
+            cache_mb: None,
         }
     }
 }
@@ -215,14 +224,28 @@ pub fn load(source: &PanopticSource) -> Result<Dataset, DataError> {
     }
 
     let factor = source.downscale;
+    let scaled = |(width, height): (u32, u32)| (width / factor, height / factor);
+    let total_bytes = jobs
+        .iter()
+        .map(|job| {
+            let (width, height) = scaled(job.size);
+            3 * u64::from(width) * u64::from(height)
+        })
+        .sum();
+    let cache = stream::plan(source.cache_mb, total_bytes);
     let decoded: Vec<(bool, View)> = jobs
         .par_iter()
         .map(|job| {
-            let full = read_rgb8(&job.image_path, Some(job.size))?;
-            let image = if factor > 1 {
-                box_downscale(&full, factor)
-            } else {
-                full
+            let decode = {
+                let (path, size) = (job.image_path.clone(), job.size);
+                move || Ok(box_downscale_owned(read_rgb8(&path, Some(size))?, factor))
+            };
+            let image = match &cache {
+                None => ViewImage::from(decode()?),
+                Some(cache) => {
+                    check_image_size(&job.image_path, job.size)?;
+                    ViewImage::streamed(&job.image_path, scaled(job.size), cache, decode)
+                }
             };
             let foreground = match &job.mask_path {
                 Some(path) => {

@@ -32,3 +32,14 @@ pub(crate) fn check_background(background: &[f32; 3]) -> Result<(), FieldError> 
     }
     Ok(())
 }
+
+/// Checks a `cache_mb` setting: a finite, positive number of megabytes, or `None`.
+pub(crate) fn check_cache_mb(cache_mb: Option<f64>) -> Result<(), FieldError> {
+    match cache_mb {
+        Some(mb) if !(mb.is_finite() && mb > 0.0) => Err(FieldError::new(
+            "cache_mb",
+            format!("must be a positive number of megabytes, or None; found {mb}"),
+        )),
+        _ => Ok(()),
+    }
+}

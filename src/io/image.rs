@@ -141,6 +141,21 @@ where
     })
 }
 
+/// [`box_downscale`] taking the image: returned as it is (no copy) for a factor of 0 or 1.
+pub fn box_downscale_owned<P>(
+    image: image::ImageBuffer<P, Vec<u8>>,
+    factor: u32,
+) -> image::ImageBuffer<P, Vec<u8>>
+where
+    P: image::Pixel<Subpixel = u8>,
+{
+    if factor <= 1 {
+        image
+    } else {
+        box_downscale(&image, factor)
+    }
+}
+
 /// The block sums behind [`box_downscale`]: for each `factor × factor` block of `image`
 /// (edge remainders cropped), in row-major order, calls `write(sums, out)` with the
 /// per-channel sums of the block (`P::CHANNEL_COUNT` of them) and the output pixel's

@@ -14,7 +14,7 @@ use serde::Serialize;
 use super::flow::{self, MASK_FRAME_GAP};
 use super::lpips::{Lpips, LpipsError};
 use super::{masked_psnr, masked_ssim, psnr, ssim};
-use crate::data::{Dataset, View};
+use crate::data::{DataError, Dataset, View};
 use crate::io::image::{Image, ImageError};
 
 /// The metrics of one held-out view.
@@ -111,13 +111,24 @@ pub fn mask_file_name(camera: usize, frame: usize) -> String {
 
 /// The flow mask of a held-out view: flow between frame `t − 5` and `t` of the same camera.
 /// None for the first five frames (or when the earlier frame is not among the test views).
-pub fn flow_mask(dataset: &Dataset, view: &View, threshold: f32) -> Option<Vec<bool>> {
-    let earlier = dataset.test_view(view.camera, view.frame.checked_sub(MASK_FRAME_GAP)?)?;
-    Some(flow::dynamic_mask(
-        &earlier.to_image(),
-        &view.to_image(),
+/// Fails only when a streamed view's file can no longer be read.
+pub fn flow_mask(
+    dataset: &Dataset,
+    view: &View,
+    threshold: f32,
+) -> Result<Option<Vec<bool>>, DataError> {
+    let Some(earlier) = view
+        .frame
+        .checked_sub(MASK_FRAME_GAP)
+        .and_then(|frame| dataset.test_view(view.camera, frame))
+    else {
+        return Ok(None);
+    };
+    Ok(Some(flow::dynamic_mask(
+        &earlier.to_image()?,
+        &view.to_image()?,
         threshold,
-    ))
+    )))
 }
 
 /// Where the dynamic masks of the held-out views come from.
@@ -160,6 +171,9 @@ pub enum MaskError {
         /// The I/O error.
         source: std::io::Error,
     },
+    /// A held-out view's image could not be read (a streamed view whose file went missing).
+    #[error(transparent)]
+    Data(#[from] DataError),
 }
 
 /// The record of how a mask folder's masks were computed, beside them.
@@ -248,7 +262,7 @@ pub fn dynamic_masks(
         } else {
             let mask = match &view.dynamic_mask {
                 Some(mask) => Some(mask.clone()),
-                None if source.compute => flow_mask(dataset, view, source.threshold),
+                None if source.compute => flow_mask(dataset, view, source.threshold)?,
                 None => None,
             };
             // Save every mask not read from the folder, so the folder shows what was used.
@@ -297,7 +311,7 @@ mod tests {
             camera: 0,
             frame,
             time: 0.0,
-            image: image.to_rgb8(),
+            image: image.to_rgb8().into(),
             dynamic_mask: None,
             foreground: None,
         }

@@ -382,7 +382,7 @@ impl SyntheticScene {
                 camera,
                 frame,
                 time: dataset.frame_time(frame),
-                image: image.to_rgb8(),
+                image: image.to_rgb8().into(),
                 dynamic_mask: Some(mask),
                 foreground: self.foreground_masks.then_some(objects),
             };

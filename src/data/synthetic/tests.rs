@@ -420,7 +420,7 @@ fn build_renders_every_camera_and_frame() {
         assert_eq!(view.time, dataset.frame_time(view.frame));
         // The same as rendering that view alone (quantised to 8 bits).
         let alone = scene.render(&dataset.cameras[view.camera], view.time);
-        assert_eq!((&alone.0.to_rgb8(), &alone.1), (&view.image, mask));
+        assert_eq!((&alone.0.to_rgb8(), &alone.1), (&*view.image.pixels().unwrap(), mask));
     }
 }
 
@@ -512,6 +512,7 @@ fn write_demo_frames() {
     };
     view_of(0, 30)
         .to_image()
+        .unwrap()
         .save_png(std::path::Path::new("/tmp/demo_frame.png"))
         .expect("writes");
     // A contact sheet: cameras 0, 2, 4, 6 down, frames 0, 20, 30, 40, 59 across, and the
@@ -521,7 +522,7 @@ fn write_demo_frames() {
     let mut sheet = Image::filled(w * frames.len(), h * (rows.len() + 1), [0.0; 3]);
     for (col, &f) in frames.iter().enumerate() {
         for (row, &c) in rows.iter().enumerate() {
-            let image = view_of(c, f).to_image();
+            let image = view_of(c, f).to_image().unwrap();
             for y in 0..h {
                 for x in 0..w {
                     sheet.data[(row * h + y) * sheet.width + col * w + x] = image.get(x, y);

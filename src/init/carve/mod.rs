@@ -23,6 +23,8 @@ pub use grid::VoxelGrid;
 pub use hull::{carve_from_masks, visual_hull};
 pub use photo::{carve_photo_consistent, photo_consistent_hull};
 
+use std::sync::Arc;
+
 use glam::Vec3;
 use image::RgbImage;
 use rand::Rng;
@@ -215,7 +217,7 @@ type PixelRect = (usize, usize, usize, usize);
 struct CarveView<'a> {
     camera: &'a Camera,
     eye: Vec3,
-    image: &'a RgbImage,
+    image: Arc<RgbImage>,
     mask: Option<&'a [bool]>,
     /// Foreground pixel counts, for "any foreground under this footprint".
     mask_sums: Option<SummedArea<1>>,
@@ -310,7 +312,7 @@ fn masked_views(dataset: &Dataset, frame: usize) -> Result<Vec<CarveView<'_>>, C
         Some(CarveView {
             camera,
             eye: camera.center(),
-            image: &view.image,
+            image: readable_pixels(view)?,
             mask: Some(mask),
             mask_sums: Some(sums),
             colour_sums: None,
@@ -333,7 +335,7 @@ fn colour_views(dataset: &Dataset, frame: usize) -> Result<Vec<CarveView<'_>>, C
             );
             return None;
         }
-        let image = &view.image;
+        let image = readable_pixels(view)?;
         let sums = SummedArea::new(camera.width as usize, camera.height as usize, |x, y| {
             image.get_pixel(x as u32, y as u32).0.map(u32::from)
         });
@@ -350,6 +352,17 @@ fn colour_views(dataset: &Dataset, frame: usize) -> Result<Vec<CarveView<'_>>, C
 
 /// The training views at `frame` (with their cameras) that `make` turns into carving views,
 /// built in parallel; `make` returns `None` for a view it cannot use.
+/// A view's pixels, or `None` with a warning when a streamed view's file cannot be read
+/// (training reports the error when it reaches that view).
+fn readable_pixels(view: &View) -> Option<Arc<RgbImage>> {
+    view.image
+        .pixels()
+        .inspect_err(|e| {
+            tracing::warn!(camera = view.camera, frame = view.frame, "{e}; not carving with it")
+        })
+        .ok()
+}
+
 fn views_at<'a>(
     dataset: &'a Dataset,
     frame: usize,

@@ -61,7 +61,7 @@ pub(super) fn sphere_scene() -> SphereScene {
                 camera: index,
                 frame: 0,
                 time: 0.0,
-                image,
+                image: image.into(),
                 dynamic_mask: None,
                 foreground: Some(mask),
             }
