@@ -34,7 +34,8 @@ pub fn loss(
             message: error.to_string(),
         });
         loss.d_color.clear();
-        loss.d_color.resize(buffers.render.image.data.len(), [0.0; 3]);
+        loss.d_color
+            .resize(buffers.render.image.data.len(), [0.0; 3]);
         state.loss = LossValue {
             total: f32::NAN,
             ..LossValue::default()

@@ -1,6 +1,8 @@
 //! Dataset file formats: N3DV (LLFF poses + frames or videos), COLMAP sparse models and PLY
 //! point clouds, read from tiny files the tests write by hand, and their errors on bad input.
 
+#[path = "common/llff.rs"]
+mod llff;
 mod mutate;
 
 use std::path::{Path, PathBuf};
@@ -13,66 +15,11 @@ use tadgs::data::n3dv::{self, N3dvSource};
 use tadgs::data::pointcloud::{read_point_cloud, write_point_cloud_ply};
 use tadgs::init::InitPoint;
 
+use llff::{llff_row, write_npy, write_poses};
+
 // ---------------------------------------------------------------------------------------
 // Helpers
 // ---------------------------------------------------------------------------------------
-
-/// Writes a version-1.0 `.npy` file with the given dtype descriptor, shape and raw data.
-fn write_npy(path: &Path, descr: &str, shape: &[usize], data: &[u8]) {
-    let shape_text = match shape {
-        [n] => format!("({n},)"),
-        _ => format!(
-            "({})",
-            shape
-                .iter()
-                .map(ToString::to_string)
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    };
-    let mut header =
-        format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_text}, }}");
-    // Magic (6) + version (2) + length (2) + header, padded with spaces to a multiple of 64.
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
-    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(header.as_bytes());
-    bytes.extend_from_slice(data);
-    std::fs::write(path, bytes).unwrap();
-}
-
-fn write_poses(path: &Path, rows: &[[f64; 17]]) {
-    let data: Vec<u8> = rows
-        .iter()
-        .flatten()
-        .flat_map(|v| v.to_le_bytes())
-        .collect();
-    write_npy(path, "<f8", &[rows.len(), 17], &data);
-}
-
-/// One `poses_bounds.npy` row from LLFF camera axes (down, right, backwards in world
-/// coordinates), the camera centre and `hwf`.
-fn llff_row(
-    down: [f64; 3],
-    right: [f64; 3],
-    backwards: [f64; 3],
-    centre: [f64; 3],
-    hwf: [f64; 3],
-) -> [f64; 17] {
-    let columns = [down, right, backwards, centre, hwf];
-    let mut row = [0.0; 17];
-    for r in 0..3 {
-        for (c, column) in columns.iter().enumerate() {
-            row[r * 5 + c] = column[r];
-        }
-    }
-    row[15] = 0.5; // near
-    row[16] = 100.0; // far
-    row
-}
 
 /// Frame `f` of camera `c`: a flat colour that encodes both, so views can be traced back.
 fn frame_color(camera: usize, frame: usize) -> [u8; 3] {
@@ -454,7 +401,8 @@ fn n3dv_streamed_frame_folders_match_loaded_ones() {
         assert_eq!(cache.stats().misses + cache.stats().prefetched, 0);
         assert_eq!(streamed.memory_bytes(), 0);
         assert_eq!(loaded.cameras, streamed.cameras);
-        let views = |d: &tadgs::data::Dataset| d.train.iter().chain(&d.test).cloned().collect::<Vec<_>>();
+        let views =
+            |d: &tadgs::data::Dataset| d.train.iter().chain(&d.test).cloned().collect::<Vec<_>>();
         for (a, b) in views(&loaded).iter().zip(&views(&streamed)) {
             assert_eq!((a.camera, a.frame, a.time), (b.camera, b.frame, b.time));
             assert!(a.image == b.image, "camera {} frame {}", a.camera, a.frame);

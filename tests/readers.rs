@@ -219,7 +219,10 @@ fn dnerf_mutant_matches_the_documented_layout() {
             "foreground fraction {fraction}"
         );
         // The corner is empty background, composited onto white.
-        assert_eq!(view.image.pixels().unwrap().get_pixel(0, 0).0, [255, 255, 255]);
+        assert_eq!(
+            view.image.pixels().unwrap().get_pixel(0, 0).0,
+            [255, 255, 255]
+        );
     }
 }
 

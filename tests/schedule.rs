@@ -433,7 +433,9 @@ fn coarse_to_fine_switches_resolution_after_coarse_until() {
         .iter()
         .map(|&(x, y)| u32::from(full.image.pixels().unwrap().get_pixel(x, y).0[1]))
         .sum();
-    assert!((u32::from(view.image.pixels().unwrap().get_pixel(1, 1).0[1]) * 4).abs_diff(expected) <= 4);
+    assert!(
+        (u32::from(view.image.pixels().unwrap().get_pixel(1, 1).0[1]) * 4).abs_diff(expected) <= 4
+    );
     let camera = coarse.cameras[view.camera];
     assert_eq!((camera.width, camera.height), (24, 18));
     assert_eq!(camera.fx, dataset.cameras[view.camera].fx / 2.0);

@@ -168,9 +168,9 @@ impl Dataset {
                     camera: view.camera,
                     frame: view.frame,
                     time: view.time,
-                    image: view
-                        .image
-                        .map(size, move |image| crate::io::image::box_downscale(image, factor)),
+                    image: view.image.map(size, move |image| {
+                        crate::io::image::box_downscale(image, factor)
+                    }),
                     dynamic_mask: mask(&view.dynamic_mask),
                     foreground: mask(&view.foreground),
                 }

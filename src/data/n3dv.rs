@@ -27,7 +27,9 @@ use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::error::{check_downscale, check_image_size, image_dimensions, read_rgb8, require_folder};
+use super::error::{
+    check_downscale, check_image_size, image_dimensions, read_rgb8, require_folder,
+};
 use super::settings::{check_cache_mb, check_downscale_factor};
 use super::{Camera, DataError, Dataset, FrameCache, ViewImage, stream};
 use crate::io::image::{box_downscale, box_downscale_owned};
@@ -458,9 +460,12 @@ pub(crate) fn load_cameras<'a>(
 ) -> Result<(Vec<LoadedFrames>, usize), DataError> {
     let mut per_camera = Vec::new();
     for (camera, frame_source) in sources.into_iter().enumerate() {
-        per_camera.push(load_frames(frame_source, limit, downscale, &|path, image| {
-            prepare(camera, path, image)
-        })?);
+        per_camera.push(load_frames(
+            frame_source,
+            limit,
+            downscale,
+            &|path, image| prepare(camera, path, image),
+        )?);
     }
     check_frame_counts(root, per_camera, limit)
 }
@@ -557,7 +562,10 @@ fn load_frame_folder(
     let first = read_rgb8(&files[0], None)?;
     let full_size = first.dimensions();
     check_downscale(&files[0], full_size, downscale)?;
-    let mut images = vec![ViewImage::from(box_downscale(&prepare(&files[0], first)?, downscale))];
+    let mut images = vec![ViewImage::from(box_downscale(
+        &prepare(&files[0], first)?,
+        downscale,
+    ))];
     let rest: Vec<ViewImage> = files[1..]
         .par_iter()
         .map(|file| {
@@ -619,7 +627,10 @@ fn stream_frame_folder(
             check_image_size(file, full_size)?;
             let path = file.clone();
             Ok(ViewImage::streamed(file, size, cache, move || {
-                Ok(box_downscale_owned(read_rgb8(&path, Some(full_size))?, downscale))
+                Ok(box_downscale_owned(
+                    read_rgb8(&path, Some(full_size))?,
+                    downscale,
+                ))
             }))
         })
         .collect::<Result<_, DataError>>()?;

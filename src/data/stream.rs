@@ -51,8 +51,7 @@ impl From<RgbImage> for ViewImage {
 /// Same pixels (an image that cannot be read equals nothing).
 impl PartialEq<RgbImage> for ViewImage {
     fn eq(&self, other: &RgbImage) -> bool {
-        self.dimensions() == other.dimensions()
-            && self.pixels().is_ok_and(|image| *image == *other)
+        self.dimensions() == other.dimensions() && self.pixels().is_ok_and(|image| *image == *other)
     }
 }
 
@@ -208,7 +207,10 @@ struct CacheState {
 enum Entry {
     /// Being decoded by some thread; others wait for it.
     Decoding,
-    Ready { image: Arc<RgbImage>, last_use: u64 },
+    Ready {
+        image: Arc<RgbImage>,
+        last_use: u64,
+    },
 }
 
 /// What a cache has done so far.
@@ -281,10 +283,7 @@ impl FrameCache {
                     return Ok(image);
                 }
                 Some(Entry::Decoding) => {
-                    state = self
-                        .decoded
-                        .wait(state)
-                        .unwrap_or_else(|e| e.into_inner());
+                    state = self.decoded.wait(state).unwrap_or_else(|e| e.into_inner());
                 }
                 None => break,
             }
@@ -373,7 +372,9 @@ impl FrameCache {
                 }
             });
         if let Err(e) = spawned {
-            tracing::warn!("cannot start the background image decoder ({e}); images are read on demand");
+            tracing::warn!(
+                "cannot start the background image decoder ({e}); images are read on demand"
+            );
         }
         sender
     }
@@ -445,7 +446,9 @@ mod tests {
         let cache = FrameCache::new(650);
         let decodes = Arc::new(AtomicUsize::new(0));
         let views: Vec<ViewImage> = (0..4)
-            .map(|i| ViewImage::streamed(Path::new("v.png"), (10, 10), &cache, counted(&decodes, i)))
+            .map(|i| {
+                ViewImage::streamed(Path::new("v.png"), (10, 10), &cache, counted(&decodes, i))
+            })
             .collect();
         for view in &views[..2] {
             view.pixels().unwrap();
@@ -522,9 +525,9 @@ mod tests {
     fn mapped_streamed_image_is_transformed_after_decoding() {
         let cache = FrameCache::new(10_000);
         let decodes = Arc::new(AtomicUsize::new(0));
-        let view = ViewImage::streamed(Path::new("v.png"), (10, 10), &cache, counted(&decodes, 200));
-        let half = view
-            .map((5, 5), |image| crate::io::image::box_downscale(image, 2));
+        let view =
+            ViewImage::streamed(Path::new("v.png"), (10, 10), &cache, counted(&decodes, 200));
+        let half = view.map((5, 5), |image| crate::io::image::box_downscale(image, 2));
         assert_eq!(half.dimensions(), (5, 5));
         assert_eq!(half.pixels().unwrap().get_pixel(4, 4).0, [200; 3]);
         assert!(half.cache().is_some());

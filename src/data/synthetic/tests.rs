@@ -420,7 +420,10 @@ fn build_renders_every_camera_and_frame() {
         assert_eq!(view.time, dataset.frame_time(view.frame));
         // The same as rendering that view alone (quantised to 8 bits).
         let alone = scene.render(&dataset.cameras[view.camera], view.time);
-        assert_eq!((&alone.0.to_rgb8(), &alone.1), (&*view.image.pixels().unwrap(), mask));
+        assert_eq!(
+            (&alone.0.to_rgb8(), &alone.1),
+            (&*view.image.pixels().unwrap(), mask)
+        );
     }
 }
 

@@ -358,7 +358,11 @@ fn readable_pixels(view: &View) -> Option<Arc<RgbImage>> {
     view.image
         .pixels()
         .inspect_err(|e| {
-            tracing::warn!(camera = view.camera, frame = view.frame, "{e}; not carving with it")
+            tracing::warn!(
+                camera = view.camera,
+                frame = view.frame,
+                "{e}; not carving with it"
+            )
         })
         .ok()
 }
