@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use glam::Vec3;
 use tadgs::data::Dataset;
+use tadgs::io::model::Model;
 use tadgs::scene::{BackendKind, SceneConfig};
 use tadgs::train::Trainer;
 use tadgs::view::{Renderer, SceneInfo, TrainingStatus, ViewOptions, Viewer};
@@ -68,16 +69,12 @@ pub fn view(args: ViewCommand, _ui: Ui) -> Result<()> {
         |n| n.to_string_lossy().into_owned(),
     );
     let info = SceneInfo::new(&name, &input.model, frames, &cameras, &heldout, args.up);
-    let renderer = Renderer::new(&scene, &input.model, frames)?;
-    let viewer = Viewer::start(
-        renderer,
-        info,
-        ViewOptions {
-            host: args.host,
-            port: args.port,
-        },
-    )
-    .context("starting the viewer")?;
+    let options = ViewOptions {
+        host: args.host,
+        port: args.port,
+    };
+    let viewer =
+        serve(&scene, &input.model, frames, info, options).context("starting the viewer")?;
     if !args.host.is_loopback() {
         tracing::warn!(
             "the viewer listens on {}: anyone who can reach this machine can open it",
@@ -93,6 +90,18 @@ pub fn view(args: ViewCommand, _ui: Ui) -> Result<()> {
     std::io::stdout().flush().ok();
     viewer.wait()?;
     Ok(())
+}
+
+/// Starts the viewer of `model` over `frames` frames, rendered with `scene`'s settings.
+fn serve(
+    scene: &SceneConfig,
+    model: &Model,
+    frames: usize,
+    info: SceneInfo,
+    options: ViewOptions,
+) -> Result<Viewer> {
+    let renderer = Renderer::new(scene, model, frames)?;
+    Ok(Viewer::start(renderer, info, options)?)
 }
 
 /// The viewer serving a run while it trains (`tadgs train --view`).
@@ -127,16 +136,12 @@ impl LiveView {
             &dataset.test_cameras(),
             None,
         );
-        let renderer = Renderer::new(&scene, &model, frames)?;
-        let viewer = Viewer::start(
-            renderer,
-            info,
-            ViewOptions {
-                host: IpAddr::from([127, 0, 0, 1]),
-                port,
-            },
-        )
-        .context("starting the viewer (--view)")?;
+        let options = ViewOptions {
+            host: IpAddr::from([127, 0, 0, 1]),
+            port,
+        };
+        let viewer =
+            serve(&scene, &model, frames, info, options).context("starting the viewer (--view)")?;
         eprintln!(
             "viewer: {} (the model shown follows training while the page is open)",
             viewer.url()
