@@ -270,6 +270,10 @@ impl FrameCache {
         background: bool,
     ) -> Result<Arc<RgbImage>, DataError> {
         let mut state = self.lock();
+        if background {
+            // Taken off the queue whatever happens next, so a later prefetch can queue it again.
+            state.queued.remove(&key);
+        }
         loop {
             state.clock += 1;
             let now = state.clock;
@@ -296,11 +300,13 @@ impl FrameCache {
         }
         drop(state);
 
+        // Waiters must not wait forever if `decode` panics: the guard withdraws the entry.
+        let pending = Pending { cache: self, key };
         let decoded = decode().map(Arc::new);
+        std::mem::forget(pending);
 
         let mut state = self.lock();
         state.entries.remove(&key);
-        state.queued.remove(&key);
         if let Ok(image) = &decoded {
             self.insert(&mut state, key, image.clone());
         }
@@ -377,6 +383,20 @@ impl FrameCache {
             );
         }
         sender
+    }
+}
+
+/// An image being decoded; dropped only by a panic in the decoder, when it withdraws the
+/// entry and wakes the waiters (who then decode it themselves).
+struct Pending<'a> {
+    cache: &'a FrameCache,
+    key: u64,
+}
+
+impl Drop for Pending<'_> {
+    fn drop(&mut self) {
+        self.cache.lock().entries.remove(&self.key);
+        self.cache.decoded.notify_all();
     }
 }
 
@@ -492,6 +512,41 @@ mod tests {
         assert_eq!(decodes.load(Ordering::SeqCst), 1);
         let stats = cache.stats();
         assert_eq!(stats.prefetched + stats.misses, 1, "{stats:?}");
+    }
+
+    #[test]
+    fn image_evicted_after_a_prefetch_can_be_prefetched_again() {
+        // Room for one image: each fetch evicts the other. Whichever of the prefetch and the
+        // fetch decodes `a` first, the queue must end empty, or `a` could never be prefetched
+        // again.
+        let cache = FrameCache::new(300);
+        let decodes = Arc::new(AtomicUsize::new(0));
+        let a = ViewImage::streamed(Path::new("a.png"), (10, 10), &cache, counted(&decodes, 1));
+        let b = ViewImage::streamed(Path::new("b.png"), (10, 10), &cache, counted(&decodes, 2));
+        for _ in 0..20 {
+            a.prefetch();
+            a.pixels().unwrap();
+            b.pixels().unwrap();
+        }
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        while !cache.lock().queued.is_empty() && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert!(cache.lock().queued.is_empty());
+    }
+
+    #[test]
+    fn decoder_panic_does_not_leave_waiters_hanging() {
+        let cache = FrameCache::new(10_000);
+        let view = ViewImage::streamed(Path::new("p.png"), (10, 10), &cache, || {
+            panic!("bad decoder")
+        });
+        let first = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| view.pixels()));
+        assert!(first.is_err());
+        assert!(
+            cache.lock().entries.is_empty(),
+            "the pending entry was withdrawn"
+        );
     }
 
     #[test]
