@@ -143,6 +143,35 @@ pub struct GradAccum {
     pub weighted_offset: f32,
 }
 
+/// The time range a Gaussian of a merged segment model draws in (see `tadgs segment`):
+/// its opacity is multiplied by [`crate::model::deform::window_factor`], 1 inside
+/// [`TimeWindow::start`, `end`], 0 outside, with a linear ramp `fade` wide centred on each
+/// end. Trained models have none; neighbouring segments share an end, so their factors sum to
+/// 1 and the scene cross-fades from one segment's Gaussians to the next.
+///
+/// Not an optimised parameter: it has no gradient and Adam state, densification copies it to
+/// clones and splits, and the GPU backend refuses models that carry it.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[repr(C)]
+pub struct TimeWindow {
+    /// Normalised time where the Gaussian fades in (the middle of the ramp).
+    pub start: f32,
+    /// Normalised time where it fades out (the middle of the ramp).
+    pub end: f32,
+    /// Width of each ramp in normalised time; 0 switches at `start` and `end` (in at
+    /// `start`, out after `end`).
+    pub fade: f32,
+}
+
+impl TimeWindow {
+    /// A window that never hides anything.
+    pub const ALWAYS: Self = Self {
+        start: -1.0,
+        end: 2.0,
+        fade: 0.0,
+    };
+}
+
 /// The warped temporal offset Δt' = W(t − t_i) at the current time.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]

@@ -15,9 +15,7 @@ use crate::data::pointcloud::read_point_cloud;
 use crate::data::{Camera, DataError, Dataset};
 use crate::gpu::{GpuError, GpuTraining};
 use crate::init::carve::{CarveError, CarvedPoints};
-use crate::init::{
-    InitPoint, anchor_frames, anchor_points, nearest_neighbour_scales, scene_extent,
-};
+use crate::init::{InitPoint, anchor_points, nearest_neighbour_scales, scene_extent};
 use crate::io::checkpoint::Checkpoint;
 use crate::io::image::Image;
 use crate::io::model::Model;
@@ -198,7 +196,7 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
     };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(scene.train.seed ^ 0x5eed);
     let mut spawned = 0;
-    for frame in anchor_frames(dataset.frame_count, init.anchor_spacing) {
+    for frame in dataset.anchor_frames(init.anchor_spacing) {
         let mut points = match &file_points {
             Some(points) => CarvedPoints::undivided(points.clone()),
             None => anchor_points(&dataset, frame, init, &mut rng)?,
@@ -369,6 +367,11 @@ impl Trainer {
         dataset: Arc<Dataset>,
         model: &Model,
     ) -> Result<Self, GpuError> {
+        if scene.train.backend == crate::scene::BackendKind::Gpu
+            && let Some(what) = model.gpu_unsupported()
+        {
+            return Err(GpuError::Unsupported(what));
+        }
         let mut world = World::new();
         insert_resources(&mut world, scene, dataset)?;
         model.spawn_into(&mut world);

@@ -12,6 +12,7 @@ use crate::gpu::GpuRasterizer;
 use crate::model::deform::{
     centre_gradient, fourier_offset_backward, polynomial_dtw_backward, rotation_at_backward,
     scale_at_backward, scale_velocity, temporal_opacity_backward, temporal_opacity_dtw_backward,
+    window_factor,
 };
 use crate::model::project::project_backward;
 use crate::model::sh::sh_to_rgb_backward;
@@ -112,7 +113,8 @@ pub fn backward_parameters(
     gaussians
         .par_iter_mut()
         .for_each(|(inputs, deformed, slot, grads)| {
-            let ((_, fourier, temporal, opacity, rotation, scale, color, rest), warped) = inputs;
+            let ((_, fourier, temporal, opacity, rotation, scale, color, rest), warped, window) =
+                inputs;
             let (
                 mut g_pos,
                 mut g_fourier,
@@ -140,6 +142,8 @@ pub fn backward_parameters(
                 return;
             }
             let dtw = warped.dtw;
+            // A time window scales σ(t) by a factor of time alone: dL/dσ scales alike.
+            let d_sigma = d.opacity * window.map_or(1.0, |w| window_factor(w, sample.time));
 
             let (d_sh, d_dir) = sh_to_rgb_backward(
                 sh_degree,
@@ -167,7 +171,7 @@ pub fn backward_parameters(
                 opacity.logit,
                 temporal.scale,
                 dtw,
-                d.opacity,
+                d_sigma,
             );
 
             g_pos.0 = Position {
@@ -187,7 +191,7 @@ pub fn backward_parameters(
                         opacity.logit,
                         temporal.scale,
                         dtw,
-                        d.opacity,
+                        d_sigma,
                     );
                 centre_gradient(d_dtw, &warp, warped.dt)
             } else {

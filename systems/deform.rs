@@ -3,15 +3,16 @@
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 
-use crate::components::{Deformed, ParamRefs, WarpedTime, sh_coefficients};
+use crate::components::{Deformed, ParamRefs, TimeWindow, WarpedTime, sh_coefficients};
 use crate::model::deform::{
-    fourier_offset, rotation_at, scale_at, scale_velocity, temporal_opacity,
+    fourier_offset, rotation_at, scale_at, scale_velocity, temporal_opacity, window_factor,
 };
 use crate::model::sh::sh_to_rgb;
 use crate::resources::{Settings, TrainState, ViewSample};
 
-/// The parameter components the deformation reads.
-pub type DeformInputs<'a> = (ParamRefs<'a>, &'a WarpedTime);
+/// The components the deformation reads: the parameters, the warped time and, in merged
+/// segment models, the time window.
+pub type DeformInputs<'a> = (ParamRefs<'a>, &'a WarpedTime, Option<&'a TimeWindow>);
 
 /// Evaluates every Gaussian at the sampled time into its [`Deformed`] component.
 pub fn deform(
@@ -25,8 +26,12 @@ pub fn deform(
     let scale_motion = settings.model.scale_motion;
     let sh_degree = state.sh_degree;
     let eye = sample.camera.center();
+    let time = sample.time;
     gaussians.par_iter_mut().for_each(
-        |(((pos, fourier, temporal, opacity, rotation, scale, color, rest), warped), mut out)| {
+        |(
+            ((pos, fourier, temporal, opacity, rotation, scale, color, rest), warped, window),
+            mut out,
+        )| {
             let dtw = warped.dtw;
             let mean = Vec3::from_array(pos.mean)
                 + fourier_offset(&fourier.cos, &fourier.sin, &fourier.phase, motion, dtw);
@@ -35,7 +40,8 @@ pub fn deform(
                 mean: mean.to_array(),
                 rotation: rotation_at(rotation.c0, rotation.c1, dtw),
                 scale: scale_at(scale.d0, scale_velocity, dtw).to_array(),
-                opacity: temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw),
+                opacity: temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw)
+                    * window.map_or(1.0, |w| window_factor(w, time)),
                 color: sh_to_rgb(sh_degree, &sh_coefficients(color, rest), mean - eye),
             };
         },

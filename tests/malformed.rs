@@ -31,6 +31,7 @@ fn valid_model_bytes(dir: &Path) -> Vec<u8> {
         sh_degree: 1,
         frame_count: None,
         config: None,
+        time_windows: None,
     };
     model.save(&path).unwrap();
     std::fs::read(path).unwrap()

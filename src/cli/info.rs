@@ -83,6 +83,15 @@ fn describe_model(model: &Model, settings: &Settings) {
             .frame_count
             .map_or("unknown".into(), |f| f.to_string())
     );
+    if let Some(windows) = &model.time_windows {
+        let mut segments: Vec<(f32, f32)> = windows.iter().map(|w| (w.start, w.end)).collect();
+        segments.sort_by(|a, b| a.0.total_cmp(&b.0));
+        segments.dedup();
+        println!(
+            "segments         {} merged (time windows, CPU backend only)",
+            segments.len()
+        );
+    }
     let m = &settings.model;
     println!(
         "deformation      opacity {:?}, phase {:?}, scale motion {}, TOW {}",

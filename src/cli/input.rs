@@ -45,6 +45,7 @@ impl Input {
                     sh_degree: checkpoint.state.sh_degree,
                     frame_count: None,
                     config: Some(checkpoint.state.scene.model.clone()),
+                    time_windows: None,
                 }
             } else {
                 Model::load(&model_path)?

@@ -69,6 +69,9 @@ pub enum GpuError {
     /// wgpu's.
     #[error("reading back a GPU buffer failed: {0}")]
     Readback(String),
+    /// The model holds something the GPU backend does not draw.
+    #[error("the GPU backend does not draw {0}; use the CPU backend (`backend: Cpu`)")]
+    Unsupported(&'static str),
     /// A buffer would exceed what the device can bind in one storage binding.
     #[error(
         "the GPU {what} buffer would need {bytes} bytes, above the device's limit of {limit} bytes per storage binding"

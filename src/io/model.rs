@@ -13,9 +13,13 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
-use crate::components::{GaussianParams, ParamRefs, spawn_gaussians};
+use crate::components::{GaussianParams, ParamRefs, TimeWindow, spawn_gaussians};
 use crate::layout::{SECTION_NAMES, SECTIONS, WIDTHS, gaussians_of, sections_of};
 use crate::scene::{DataSource, ModelConfig, SceneConfig};
+
+/// Name of the optional `N × 3` tensor of time windows (start, end, fade) of a merged
+/// segment model.
+pub const TIME_WINDOW_TENSOR: &str = "time_window";
 
 /// Value of the `format` metadata key.
 pub const MODEL_FORMAT: &str = "tadgs-4d-gaussians";
@@ -76,22 +80,39 @@ pub struct Model {
     pub frame_count: Option<usize>,
     /// The deformation settings it was trained with; `None` in files that do not record them.
     pub config: Option<ModelConfig>,
+    /// One time window per Gaussian in a model merged from temporal segments (`tadgs segment
+    /// merge`); `None` in trained models, whose Gaussians draw at every time.
+    pub time_windows: Option<Vec<TimeWindow>>,
 }
 
 impl Model {
     /// Reads every Gaussian's parameters out of `world`.
     pub fn from_world(world: &mut World, sh_degree: u32) -> Self {
-        let gaussians = world
-            .query::<ParamRefs>()
+        let (gaussians, windows): (Vec<_>, Vec<_>) = world
+            .query::<(ParamRefs, Option<&TimeWindow>)>()
             .iter(world)
-            .map(GaussianParams::from_refs)
-            .collect();
+            .map(|(params, window)| (GaussianParams::from_refs(params), window.copied()))
+            .unzip();
+        let time_windows = windows.iter().any(Option::is_some).then(|| {
+            windows
+                .iter()
+                .map(|w| w.unwrap_or(TimeWindow::ALWAYS))
+                .collect()
+        });
         Self {
             gaussians,
             sh_degree,
             frame_count: None,
             config: None,
+            time_windows,
         }
+    }
+
+    /// Why the GPU backend cannot draw this model, if it cannot: it draws no time windows.
+    pub fn gpu_unsupported(&self) -> Option<&'static str> {
+        self.time_windows
+            .as_ref()
+            .map(|_| "the time windows of a merged segment model")
     }
 
     /// A scene that renders this model on its own: its deformation settings (the defaults when
@@ -146,13 +167,24 @@ impl Model {
         let scene_degree = world
             .get_resource::<crate::resources::Settings>()
             .map_or(0, |s| s.model.sh_degree);
-        spawn_gaussians(
-            world,
-            self.sh_degree.max(scene_degree),
-            self.gaussians
-                .iter()
-                .map(|g| (g.bundle(), g.optional_bundle())),
-        );
+        let sh_degree = self.sh_degree.max(scene_degree);
+        let bundles = self
+            .gaussians
+            .iter()
+            .map(|g| (g.bundle(), g.optional_bundle()));
+        match &self.time_windows {
+            None => spawn_gaussians(world, sh_degree, bundles),
+            Some(windows) if sh_degree > 0 => {
+                world.spawn_batch(bundles.zip(windows.iter().copied()));
+            }
+            Some(windows) => {
+                world.spawn_batch(
+                    bundles
+                        .map(|(bundle, _)| bundle)
+                        .zip(windows.iter().copied()),
+                );
+            }
+        }
     }
 
     /// Writes the model to `path` (temporary file, then rename: complete or absent).
@@ -172,7 +204,15 @@ impl Model {
             })?;
             metadata.insert("model".into(), text);
         }
-        write_tensors(path, &param_tensors(&self.gaussians, ""), metadata)
+        let mut tensors = param_tensors(&self.gaussians, "");
+        if let Some(windows) = &self.time_windows {
+            tensors.push(float_tensor(
+                TIME_WINDOW_TENSOR.into(),
+                3,
+                bytemuck::cast_slice(windows),
+            ));
+        }
+        write_tensors(path, &tensors, metadata)
     }
 
     /// Reads a model written by [`Model::save`], checking every tensor's type and shape.
@@ -218,11 +258,38 @@ impl Model {
         let tensors = safetensors::SafeTensors::deserialize(&bytes)
             .map_err(|e| format_error(e.to_string()))?;
         let gaussians = read_param_tensors(path, &tensors, "", None)?;
+        let time_windows = if tensors.names().contains(&TIME_WINDOW_TENSOR) {
+            let values = read_floats(
+                path,
+                &tensors,
+                TIME_WINDOW_TENSOR.into(),
+                3,
+                Some(gaussians.len()),
+            )?;
+            let windows = bytemuck::cast_slice::<f32, TimeWindow>(&values).to_vec();
+            if let Some(index) = windows
+                .iter()
+                .position(|w| !(w.fade >= 0.0 && w.start <= w.end))
+            {
+                return Err(ModelError::Tensor {
+                    path: path.to_path_buf(),
+                    tensor: TIME_WINDOW_TENSOR.into(),
+                    message: format!(
+                        "row {index} is {:?}: a window needs start ≤ end and fade ≥ 0",
+                        windows[index]
+                    ),
+                });
+            }
+            Some(windows)
+        } else {
+            None
+        };
         Ok(Self {
             gaussians,
             sh_degree,
             frame_count,
             config,
+            time_windows,
         })
     }
 }
@@ -388,6 +455,7 @@ mod tests {
                 scale_motion: false,
                 ..ModelConfig::default()
             }),
+            time_windows: None,
         }
     }
 
@@ -421,6 +489,72 @@ mod tests {
     }
 
     /// A truncated file is an error naming the file, never a panic.
+    /// Property: a merged model's time windows survive saving, come back as components of
+    /// the spawned Gaussians (and out of the world again), and a window with a negative fade
+    /// or its ends swapped is refused naming the tensor and row.
+    #[test]
+    fn time_windows_round_trip_and_bad_windows_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("merged.safetensors");
+        let mut model = sample_model();
+        let windows: Vec<TimeWindow> = (0..5)
+            .map(|i| TimeWindow {
+                start: i as f32 * 0.1,
+                end: 0.5 + i as f32 * 0.1,
+                fade: 0.01,
+            })
+            .collect();
+        model.time_windows = Some(windows.clone());
+        model.save(&path).unwrap();
+        let back = Model::load(&path).unwrap();
+        assert_eq!(back.time_windows.as_deref(), Some(windows.as_slice()));
+        assert!(back.gpu_unsupported().is_some());
+        assert!(
+            Model::load(&{
+                let plain = dir.path().join("plain.safetensors");
+                sample_model().save(&plain).unwrap();
+                plain
+            })
+            .unwrap()
+            .time_windows
+            .is_none()
+        );
+
+        let mut world = World::new();
+        back.spawn_into(&mut world);
+        let mut spawned: Vec<TimeWindow> =
+            world.query::<&TimeWindow>().iter(&world).copied().collect();
+        spawned.sort_by(|a, b| a.start.total_cmp(&b.start));
+        assert_eq!(spawned, windows);
+        let mut again = Model::from_world(&mut world, 2).time_windows.unwrap();
+        again.sort_by(|a, b| a.start.total_cmp(&b.start));
+        assert_eq!(again, windows);
+
+        for bad in [
+            TimeWindow {
+                start: 0.0,
+                end: 1.0,
+                fade: -0.1,
+            },
+            TimeWindow {
+                start: 0.6,
+                end: 0.5,
+                fade: 0.0,
+            },
+        ] {
+            let mut model = sample_model();
+            let mut rows = windows.clone();
+            rows[3] = bad;
+            model.time_windows = Some(rows);
+            model.save(&path).unwrap();
+            let message = Model::load(&path).unwrap_err().to_string();
+            assert!(
+                message.contains("time_window") && message.contains("row 3"),
+                "{message}"
+            );
+        }
+    }
+
     #[test]
     fn truncated_model_is_an_error() {
         let dir = tempfile::tempdir().unwrap();

@@ -23,7 +23,9 @@ use crate::components::{
     Fourier, GaussianParams, Opacity, Position, Rotation, Scale, Temporal, split_sh,
 };
 use crate::io::model::Model;
-use crate::model::deform::{fourier_offset, logit, rotation_at, scale_velocity, temporal_opacity};
+use crate::model::deform::{
+    fourier_offset, logit, rotation_at, scale_velocity, temporal_opacity, window_factor,
+};
 use crate::model::sh::{SH_COEFFS, coeff_count};
 use crate::resources::Settings;
 use crate::scene::{ModelConfig, OpacityModel};
@@ -372,12 +374,14 @@ impl SplatCloud {
             sh_degree: self.sh_degree,
             frame_count: Some(1),
             config: Some(config),
+            time_windows: None,
         }
     }
 }
 
 /// Every Gaussian of `model` evaluated at normalised time `time` (motion, rotation, scale and
-/// temporal opacity, with TOW as the model was trained), keeping those whose opacity σ(t) is
+/// temporal opacity, with TOW as the model was trained, and the time window of a merged
+/// segment model), keeping those whose opacity σ(t) is
 /// at least `min_opacity`. SH coefficients are kept as they are (the colour stays
 /// view-dependent). `settings` must be the model's (see [`Model::scene`]).
 pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32) -> SplatCloud {
@@ -385,9 +389,15 @@ pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32)
     let splats = model
         .gaussians
         .iter()
-        .filter_map(|g| {
+        .enumerate()
+        .filter_map(|(index, g)| {
             let dtw = settings.warp.apply(time - g.temporal.center);
-            let sigma = temporal_opacity(settings.opacity, g.opacity.logit, g.temporal.scale, dtw);
+            let window = model
+                .time_windows
+                .as_ref()
+                .map_or(1.0, |windows| window_factor(&windows[index], time));
+            let sigma =
+                temporal_opacity(settings.opacity, g.opacity.logit, g.temporal.scale, dtw) * window;
             if sigma < min_opacity {
                 return None;
             }

@@ -11,6 +11,7 @@ use std::f32::consts::TAU;
 use glam::Vec3;
 
 use super::warp::TimeWarp;
+use crate::components::TimeWindow;
 
 /// Number K of Fourier frequencies of the motion.
 pub const FOURIER_TERMS: usize = 4;
@@ -204,6 +205,30 @@ pub fn temporal_opacity(
     dtw: f32,
 ) -> f32 {
     sigmoid(opacity_logit) * temporal_factor(model, temporal_raw, dtw).0
+}
+
+/// Opacity factor of a [`TimeWindow`] at normalised time `time`: the product of a rising
+/// ramp centred on `start` and a falling one centred on `end`, each `fade` wide (steps when
+/// `fade` is 0). Two windows that share an end sum to 1 across it. It does not depend on any
+/// optimised parameter, so its backward is a scaling of dL/dσ by the same factor.
+#[inline]
+pub fn window_factor(window: &TimeWindow, time: f32) -> f32 {
+    let ramp = |distance_inside: f32| {
+        if window.fade > 0.0 {
+            (distance_inside / window.fade + 0.5).clamp(0.0, 1.0)
+        } else if distance_inside >= 0.0 {
+            1.0
+        } else {
+            0.0
+        }
+    };
+    // With no fade the end is exclusive, so a time on a shared end belongs to one window.
+    let falling = if window.fade > 0.0 {
+        ramp(window.end - time)
+    } else {
+        f32::from(time < window.end)
+    };
+    ramp(time - window.start) * falling
 }
 
 /// Backward of [`temporal_opacity`]: (dL/d opacity_logit, dL/d temporal_raw) given
@@ -546,6 +571,47 @@ mod tests {
         };
         let h = 24.5 / 299.0;
         assert!((w_min - h / (-(0.2f32.ln())).sqrt()).abs() < 1e-7);
+    }
+
+    #[test]
+    fn windows_sharing_an_end_sum_to_one() {
+        // Two segments meeting at t = 0.5 with a 0.1-wide cross-fade, and the same without.
+        for fade in [0.1, 0.0] {
+            let first = TimeWindow {
+                start: -1.0,
+                end: 0.5,
+                fade,
+            };
+            let second = TimeWindow {
+                start: 0.5,
+                end: 2.0,
+                fade,
+            };
+            for i in 0..=100 {
+                let t = i as f32 / 100.0;
+                let sum = window_factor(&first, t) + window_factor(&second, t);
+                assert!((sum - 1.0).abs() < 1e-6, "fade {fade}, t {t}: {sum}");
+            }
+        }
+        let fading = TimeWindow {
+            start: 0.2,
+            end: 0.6,
+            fade: 0.1,
+        };
+        assert_eq!(window_factor(&fading, 0.4), 1.0);
+        assert_eq!(window_factor(&fading, 0.1), 0.0);
+        assert!((window_factor(&fading, 0.2) - 0.5).abs() < 1e-6);
+        assert!((window_factor(&fading, 0.625) - 0.25).abs() < 1e-5);
+        assert_eq!(window_factor(&fading, 0.7), 0.0);
+        let step = TimeWindow {
+            start: 0.2,
+            end: 0.6,
+            fade: 0.0,
+        };
+        assert_eq!(window_factor(&step, 0.2), 1.0);
+        assert_eq!(window_factor(&step, 0.6), 0.0);
+        assert_eq!(window_factor(&TimeWindow::ALWAYS, 0.0), 1.0);
+        assert_eq!(window_factor(&TimeWindow::ALWAYS, 1.0), 1.0);
     }
 
     #[test]

@@ -732,6 +732,7 @@ mod tests {
             sh_degree: 0,
             frame_count: Some(3),
             config: None,
+            time_windows: None,
         };
         let scene = model.scene("empty", [0.0; 3]);
         let renderer = Renderer::new(&scene, &model, 3).unwrap();

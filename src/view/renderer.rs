@@ -162,8 +162,13 @@ pub struct Renderer {
 impl Renderer {
     /// A world with `scene`'s render settings (background, near plane, deformation, backend)
     /// holding `model`, for a sequence of `frame_count` frames. Fails only when the scene asks
-    /// for the GPU backend and no GPU opens.
+    /// for the GPU backend and no GPU opens, or the model has what it cannot draw.
     pub fn new(scene: &SceneConfig, model: &Model, frame_count: usize) -> Result<Self, GpuError> {
+        if scene.train.backend == crate::scene::BackendKind::Gpu
+            && let Some(what) = model.gpu_unsupported()
+        {
+            return Err(GpuError::Unsupported(what));
+        }
         let mut world = World::new();
         // The extent only scales learning rates and densification: any value renders the same.
         let placeholder = Camera::look_at(
