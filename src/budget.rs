@@ -21,7 +21,6 @@ use std::mem::size_of;
 
 use crate::components::{Deformed, gaussian_bytes};
 use crate::data::Dataset;
-use crate::init::anchor_frames;
 use crate::raster::{PACKED_SPLAT_BYTES, Splat, SplatGrad};
 use crate::resources::DeformedGrad;
 use crate::scene::SceneConfig;
@@ -108,7 +107,7 @@ impl MemoryEstimate {
     /// The estimate for training `scene` on `dataset`.
     pub fn new(scene: &SceneConfig, dataset: &Dataset) -> Self {
         let (width, height) = largest_camera(dataset);
-        let anchors = anchor_frames(dataset.frame_count, scene.init.anchor_spacing).len();
+        let anchors = dataset.anchor_frames(scene.init.anchor_spacing).len();
         // Coarse-to-fine keeps a downscaled copy of the views (at most this much).
         let factor = u64::from(scene.train.coarse_downscale.max(1));
         let images = dataset.memory_bytes() as u64;

@@ -8,6 +8,7 @@ pub mod info;
 pub mod input;
 pub mod render;
 pub mod run_folder;
+pub mod segment;
 pub mod train;
 pub mod view;
 
@@ -81,8 +82,19 @@ pub fn checkpoint_and_run(dir: &Path) -> (PathBuf, PathBuf) {
 pub fn load_dataset(config: &SceneConfig) -> Result<Dataset> {
     let start = Instant::now();
     tracing::info!("scene `{}`: loading data", config.name);
-    let dataset = tadgs::data::load(&config.data)
+    let mut dataset = tadgs::data::load(&config.data)
         .with_context(|| format!("loading the data of scene `{}`", config.name))?;
+    if let Some(segment) = config.segment {
+        dataset
+            .restrict_to_segment(segment)
+            .map_err(|message| anyhow::anyhow!("scene `{}`: {message}", config.name))?;
+        tracing::info!(
+            "segment: frames {} to {} of {}",
+            segment.first_frame,
+            segment.last_frame,
+            dataset.frame_count
+        );
+    }
     tracing::info!(
         "{} cameras ({} train, {} held out), {} frames, {} training and {} held-out views, {}×{} px, {:.0} MB, in {:.1} s",
         dataset.cameras.len(),

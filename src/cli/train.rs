@@ -526,10 +526,7 @@ impl Run<'_> {
                     .iter()
                     .map(|v| (v.frame, v.psnr, v.masked_psnr)),
             ),
-            anchor_frames: tadgs::init::anchor_frames(
-                dataset.frame_count,
-                self.config.init.anchor_spacing,
-            ),
+            anchor_frames: dataset.anchor_frames(self.config.init.anchor_spacing),
         };
         let page = report
             .write(&self.output.join("report"))

@@ -76,6 +76,8 @@ pub struct Dataset {
     /// frame order; where there are any, each anchor frame starts from the nearest frame's
     /// cloud instead of [`Dataset::points`] (see [`Dataset::nearest_frame_points`]).
     pub frame_points: Vec<(usize, Vec<crate::init::InitPoint>)>,
+    /// The temporal segment the views were restricted to ([`Dataset::restrict_to_segment`]).
+    pub segment: Option<crate::scene::Segment>,
 }
 
 impl Dataset {
@@ -104,6 +106,47 @@ impl Dataset {
             train,
             ..Self::default()
         }
+    }
+
+    /// Keeps only the training and held-out views of the segment's frames. Frame numbers,
+    /// times and [`Dataset::frame_count`] stay those of the whole sequence, so a model trained
+    /// on the segment lives in the sequence's time.
+    pub fn restrict_to_segment(&mut self, segment: crate::scene::Segment) -> Result<(), String> {
+        if segment.last_frame >= self.frame_count {
+            return Err(format!(
+                "the segment ends at frame {}, but the sequence has {} frames (0 to {})",
+                segment.last_frame,
+                self.frame_count,
+                self.frame_count.saturating_sub(1)
+            ));
+        }
+        let frames = segment.first_frame..=segment.last_frame;
+        self.train.retain(|view| frames.contains(&view.frame));
+        self.test.retain(|view| frames.contains(&view.frame));
+        if self.train.is_empty() {
+            return Err(format!(
+                "no training view lies in the segment's frames {} to {}",
+                segment.first_frame, segment.last_frame
+            ));
+        }
+        self.segment = Some(segment);
+        Ok(())
+    }
+
+    /// The anchor frames that get initial points: every `spacing`-th frame and the last
+    /// ([`crate::init::anchor_frames`]); in a segment, those inside it plus its first and last
+    /// frames, so the segment's ends are covered as well as a whole run's.
+    pub fn anchor_frames(&self, spacing: usize) -> Vec<usize> {
+        let all = crate::init::anchor_frames(self.frame_count, spacing);
+        let Some(segment) = self.segment else {
+            return all;
+        };
+        let frames = segment.first_frame..=segment.last_frame;
+        let mut anchors: Vec<usize> = all.into_iter().filter(|f| frames.contains(f)).collect();
+        anchors.extend([segment.first_frame, segment.last_frame]);
+        anchors.sort_unstable();
+        anchors.dedup();
+        anchors
     }
 
     /// The per-frame point cloud nearest in time to `frame` (the earlier one on a tie), with
@@ -183,6 +226,7 @@ impl Dataset {
             test: Vec::new(),
             points: self.points.clone(),
             frame_points: self.frame_points.clone(),
+            segment: self.segment,
         }
     }
 

@@ -262,6 +262,17 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
             "is empty: give the run folder (an empty one would write into the working directory)",
         );
     }
+    if let Some(segment) = &config.segment
+        && segment.first_frame > segment.last_frame
+    {
+        return fail(
+            "segment",
+            format!(
+                "first_frame {} is after last_frame {}",
+                segment.first_frame, segment.last_frame
+            ),
+        );
+    }
     // train
     let t = &config.train;
     nonzero("train.iterations", t.iterations)?;

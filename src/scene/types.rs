@@ -35,6 +35,22 @@ pub struct SceneConfig {
     /// Output directory for renders and reports (relative to the working directory).
     #[serde(default = "default_output")]
     pub output: String,
+    /// Train on a temporal segment of the sequence only (written by `tadgs segment plan`);
+    /// `None` trains on every frame.
+    #[serde(default)]
+    pub segment: Option<Segment>,
+}
+
+/// A temporal segment: the frames one run trains on, out of the whole sequence. Time stays
+/// that of the whole sequence (frame f at f/(T − 1), the TOW window λ = window/T), so the
+/// segments' Gaussians can be merged into one model of the whole sequence.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(deny_unknown_fields)]
+pub struct Segment {
+    /// First frame trained, a frame number of the whole sequence (from 0).
+    pub first_frame: usize,
+    /// Last frame trained (inclusive).
+    pub last_frame: usize,
 }
 
 impl SceneConfig {
@@ -48,6 +64,7 @@ impl SceneConfig {
             densify: DensifyConfig::default(),
             train: TrainConfig::default(),
             output: default_output(),
+            segment: None,
         }
     }
 }
