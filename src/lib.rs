@@ -66,6 +66,7 @@ pub mod raster;
 pub mod report;
 pub mod resources;
 pub mod scene;
+pub mod segment;
 #[path = "../systems/mod.rs"]
 pub mod systems;
 pub mod train;

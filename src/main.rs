@@ -52,6 +52,9 @@ enum Command {
     /// Serve an interactive 4D viewer in the browser for a run, a model file or a splat PLY:
     /// orbit, pan and zoom, a time slider, dataset cameras; frames rendered by tadgs itself.
     View(cli::view::ViewCommand),
+    /// Long sequences: split a scene into temporal segments trained as separate runs (on one
+    /// machine or a cluster, e.g. a Slurm job array), then merge them into one model.
+    Segment(cli::segment::SegmentCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -122,6 +125,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(args) => cli::info::info(args),
         Command::Bench(args) => cli::bench::bench(&args),
         Command::View(args) => cli::view::view(args, ui),
+        Command::Segment(args) => cli::segment::segment(args, ui),
     }
 }
 
