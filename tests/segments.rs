@@ -125,7 +125,21 @@ fn slurm_tasks_train_the_segments_and_the_merge_draws_each_segment() {
     let dir = tempfile::tempdir().unwrap();
     let plan_dir = plan(
         dir.path(),
-        &["--slurm", "--slurm-cpus", "1", "--slurm-time", "00:10:00"],
+        &[
+            "--iterations",
+            "30",
+            "--slurm",
+            "--slurm-cpus",
+            "1",
+            "--slurm-time",
+            "00:10:00",
+        ],
+    );
+    let segment_scene = load_scene(&plan_dir.join("segment-1.ron")).unwrap();
+    assert_eq!(segment_scene.train.iterations, 30);
+    assert_eq!(
+        segment_scene.densify.from_iter, 8,
+        "the schedule stretched from 40 to 30"
     );
     let slurm = plan_dir.join("slurm");
 

@@ -70,8 +70,12 @@ pub struct PlanArgs {
     /// 2·overlap + 1). 1 gives every frame to one segment and blends only between frames.
     #[arg(long, default_value_t = 1.0, value_name = "FRAMES")]
     pub fade: f32,
+    /// Train each segment N iterations, the scene's schedule stretched as `tadgs train
+    /// --iterations` does.
+    #[arg(long, value_name = "N")]
+    pub iterations: Option<u32>,
     /// Override a scene setting for every segment (RON value), e.g.
-    /// --set train.iterations=6000. Repeatable.
+    /// --set densify.max_gaussians=200000. Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
     /// The plan folder to write (must not hold a plan yet).
@@ -165,6 +169,9 @@ fn train_segment(args: SegmentTrainArgs, ui: Ui) -> Result<()> {
 
 fn plan(args: PlanArgs) -> Result<()> {
     let mut base = load_with_overrides(&args.scene, &args.overrides)?;
+    if let Some(n) = args.iterations {
+        super::train::set_iterations(&mut base, n, &args.overrides)?;
+    }
     if base.segment.is_some() {
         bail!(
             "{} already trains a segment (`segment: Some(…)`): plan from the whole-sequence scene",

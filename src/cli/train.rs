@@ -118,6 +118,27 @@ pub struct TrainCommand {
     pub eval: EvalArgs,
 }
 
+/// `--iterations N`: stretches the scene's schedule to `n` iterations, keeping what the
+/// `overrides` (`--set`) name as given.
+pub fn set_iterations(config: &mut SceneConfig, n: u32, overrides: &[String]) -> Result<()> {
+    let from = config.train.iterations;
+    config.scale_schedule(n);
+    apply_overrides(config, overrides)?;
+    if n != from {
+        tracing::info!(
+            "--iterations {n}: the schedule of {from} iterations stretched ×{:.3}: \
+             densification after iteration {} until {}, opacity reset every {}, SH degree up \
+             every {}",
+            n as f64 / from.max(1) as f64,
+            config.densify.from_iter,
+            config.densify.until_iter,
+            config.densify.opacity_reset_interval,
+            config.train.sh_increase_interval,
+        );
+    }
+    Ok(())
+}
+
 pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
     args.eval.check()?;
     let (mut config, checkpoint, output, continuing) = match &args.resume {
@@ -145,22 +166,7 @@ pub fn train(args: TrainCommand, ui: Ui) -> Result<()> {
         }
     };
     if let Some(n) = args.iterations {
-        let from = config.train.iterations;
-        config.scale_schedule(n);
-        // What --set names explicitly is kept as given.
-        apply_overrides(&mut config, &args.overrides)?;
-        if n != from {
-            tracing::info!(
-                "--iterations {n}: the schedule of {from} iterations stretched ×{:.3}: \
-                 densification after iteration {} until {}, opacity reset every {}, SH degree \
-                 up every {}",
-                n as f64 / from.max(1) as f64,
-                config.densify.from_iter,
-                config.densify.until_iter,
-                config.densify.opacity_reset_interval,
-                config.train.sh_increase_interval,
-            );
-        }
+        set_iterations(&mut config, n, &args.overrides)?;
     }
     if let Some(n) = args.checkpoint_every {
         config.train.checkpoint_interval = n;
