@@ -180,20 +180,29 @@ pub fn load(source: &N3dvSource) -> Result<Dataset, DataError> {
         ));
     }
 
-    let (per_camera, frame_count) = match streaming_cache(&sources, source)? {
+    let listings = folder_listings(&sources, source.frames)?;
+    let (per_camera, frame_count) = match streaming_cache(listings.as_deref(), source) {
         Some(cache) => {
+            let Some(listings) = listings else {
+                let video = sources
+                    .iter()
+                    .find_map(|(_, frames)| match frames {
+                        FrameSource::Video(video) => Some(video),
+                        FrameSource::Folder(_) => None,
+                    })
+                    .expect("a camera without a frame folder has a video");
+                return Err(DataError::dataset(
+                    video,
+                    "videos cannot be streamed from disk: extract the frames once \
+                     (ffmpeg -i camXX.mp4 frames/camXX/%06d.png), or leave data.cache_mb \
+                     unset and load the frames into memory",
+                ));
+            };
             let per_camera = sources
                 .iter()
-                .map(|(_, frames)| match frames {
-                    FrameSource::Folder(dir) => {
-                        stream_frame_folder(dir, source.frames, source.downscale, &cache)
-                    }
-                    FrameSource::Video(video) => Err(DataError::dataset(
-                        video,
-                        "videos cannot be streamed from disk: extract the frames once \
-                         (ffmpeg -i camXX.mp4 frames/camXX/%06d.png), or leave data.cache_mb \
-                         unset and load the frames into memory",
-                    )),
+                .zip(listings)
+                .map(|((_, frames), (files, full_size))| {
+                    stream_frame_folder(frames.path(), files, full_size, source.downscale, &cache)
                 })
                 .collect::<Result<Vec<_>, _>>()?;
             check_frame_counts(root, per_camera, source.frames)?
@@ -591,34 +600,55 @@ fn frame_files(dir: &Path, limit: Option<usize>) -> Result<(Vec<PathBuf>, (u32, 
     Ok((files, full_size))
 }
 
-/// The cache to stream the frames through (`data.cache_mb`, or the decoded frames would take
-/// more than half the available memory), or `None` to load them. Only frame folders are
-/// measured up front; a scene with videos is loaded unless `cache_mb` is given.
-fn streaming_cache(
+/// Every camera's frame files (at most `limit`) and first-frame size, when every camera is a
+/// frame folder; `None` when a camera has a video.
+fn folder_listings(
     sources: &[(String, FrameSource)],
+    limit: Option<usize>,
+) -> Result<Option<Vec<FrameListing>>, DataError> {
+    let listings = sources
+        .iter()
+        .map(|(_, frames)| match frames {
+            FrameSource::Folder(dir) => frame_files(dir, limit).map(Some),
+            FrameSource::Video(_) => Ok(None),
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(listings.into_iter().collect())
+}
+
+/// A camera's frame files and the full size of its first frame.
+type FrameListing = (Vec<PathBuf>, (u32, u32));
+
+/// The cache to stream the frames through (`data.cache_mb`, or the decoded frames would take
+/// more than half the available memory), or `None` to load them. Only frame folders
+/// (`listings`) are measured up front; a scene with videos is loaded unless `cache_mb` is
+/// given.
+fn streaming_cache(
+    listings: Option<&[FrameListing]>,
     source: &N3dvSource,
-) -> Result<Option<std::sync::Arc<FrameCache>>, DataError> {
-    let mut total_bytes = 0;
-    for (_, frames) in sources {
-        let FrameSource::Folder(dir) = frames else {
-            return Ok(source.cache_mb.and_then(|mb| stream::plan(Some(mb), 0)));
-        };
-        let (files, (width, height)) = frame_files(dir, source.frames)?;
-        let d = source.downscale;
-        total_bytes += files.len() as u64 * 3 * u64::from(width / d) * u64::from(height / d);
-    }
-    Ok(stream::plan(source.cache_mb, total_bytes))
+) -> Option<std::sync::Arc<FrameCache>> {
+    let Some(listings) = listings else {
+        return source.cache_mb.and_then(|mb| stream::plan(Some(mb), 0));
+    };
+    let d = source.downscale;
+    let total_bytes = listings
+        .iter()
+        .map(|(files, (width, height))| {
+            files.len() as u64 * 3 * u64::from(width / d) * u64::from(height / d)
+        })
+        .sum();
+    stream::plan(source.cache_mb, total_bytes)
 }
 
 /// A camera's frame folder as streamed views: each frame's size is checked from its header
 /// now and the pixels decoded when training or evaluation needs them.
 fn stream_frame_folder(
     dir: &Path,
-    limit: Option<usize>,
+    files: Vec<PathBuf>,
+    full_size: (u32, u32),
     downscale: u32,
     cache: &std::sync::Arc<FrameCache>,
 ) -> Result<LoadedFrames, DataError> {
-    let (files, full_size) = frame_files(dir, limit)?;
     check_downscale(&files[0], full_size, downscale)?;
     let size = (full_size.0 / downscale, full_size.1 / downscale);
     let images = files
