@@ -11,7 +11,7 @@ mod tiny;
 use std::path::Path;
 use std::process::Command;
 
-use tiny::{tadgs, tiny_demo_scene};
+use tiny::{run_fails, run_ok, tadgs, tiny_demo_scene};
 
 use tadgs::components::Param;
 
@@ -168,16 +168,6 @@ fn bad_input_fails_with_one_line_naming_the_file() {
     assert_eq!(out.status.code(), Some(1));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("model.safetensors"), "{stderr}");
-}
-
-fn run_ok(args: &[&str]) -> String {
-    let out = tadgs(args);
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 /// Property: `train --until 15` (a stop between densification steps, with a checkpoint
@@ -631,12 +621,6 @@ fn train_tiny(scene: &str, run: &Path, extra: &[&str]) {
     let mut args = vec!["-q", "train", scene, "-o", run.to_str().unwrap()];
     args.extend(extra);
     run_ok(&args);
-}
-
-fn run_fails(args: &[&str]) -> String {
-    let out = tadgs(args);
-    assert_eq!(out.status.code(), Some(1), "{args:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
 /// `--backend gpu` on a machine without a desktop session (no XDG_RUNTIME_DIR) prints nothing

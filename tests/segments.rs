@@ -15,22 +15,11 @@ use tadgs::io::model::Model;
 use tadgs::scene::load_scene;
 use tadgs::segment::SegmentPlan;
 use tadgs::train::Trainer;
-use tiny::{tadgs, tiny_demo_scene};
+use tiny::{run_fails, run_ok, tiny_demo_scene};
 
-fn run_ok(args: &[&str]) -> String {
-    let out = tadgs(args);
-    assert!(
-        out.status.success(),
-        "{args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn run_fails(args: &[&str]) -> String {
-    let out = tadgs(args);
-    assert_eq!(out.status.code(), Some(1), "{args:?} should fail");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+/// `tadgs args`, which must fail with one line on stderr, which it returns.
+fn fails_with_one_line(args: &[&str]) -> String {
+    let stderr = run_fails(args);
     assert_eq!(stderr.trim().lines().count(), 1, "one line: {stderr}");
     stderr
 }
@@ -223,7 +212,7 @@ fn slurm_tasks_train_the_segments_and_the_merge_draws_each_segment() {
     // The merged run is a run folder like any other.
     let out = run_ok(&["-q", "eval", merged_run.to_str().unwrap()]);
     assert!(out.contains("PSNR"), "{out}");
-    let gpu = run_fails(&[
+    let gpu = fails_with_one_line(&[
         "-q",
         "eval",
         merged_run.to_str().unwrap(),
@@ -244,7 +233,7 @@ fn bad_plans_and_merges_fail_with_one_clear_line() {
     let plan_file = plan_dir.join("plan.ron");
     let plan = plan_file.to_str().unwrap();
 
-    let untrained = run_fails(&["segment", "merge", plan]);
+    let untrained = fails_with_one_line(&["segment", "merge", plan]);
     assert!(
         untrained.contains("segment 0")
             && untrained.contains("tadgs train")
@@ -261,20 +250,20 @@ fn bad_plans_and_merges_fail_with_one_clear_line() {
         "--set",
         "train.seed=7",
     ]);
-    let other = run_fails(&["segment", "merge", plan]);
+    let other = fails_with_one_line(&["segment", "merge", plan]);
     assert!(
         other.contains("segment 1") && other.contains("other settings") && other.contains("seed"),
         "{other}"
     );
     run_ok(&["-q", "train", segment(1).to_str().unwrap(), "--force"]);
     run_ok(&["-q", "segment", "merge", plan]);
-    let again = run_fails(&["segment", "merge", plan]);
+    let again = fails_with_one_line(&["segment", "merge", plan]);
     assert!(again.contains("--force"), "{again}");
     run_ok(&["-q", "segment", "merge", plan, "--force"]);
 
     let text = std::fs::read_to_string(&plan_file).unwrap();
     std::fs::write(&plan_file, text.replace("owned_first: 3", "owned_first: 2")).unwrap();
-    let overlapping = run_fails(&["segment", "merge", plan]);
+    let overlapping = fails_with_one_line(&["segment", "merge", plan]);
     assert!(
         overlapping.contains("without gap or overlap"),
         "{overlapping}"
@@ -284,12 +273,12 @@ fn bad_plans_and_merges_fail_with_one_clear_line() {
     let scene = scene.to_str().unwrap();
     let out = dir.path().join("other");
     let out = out.to_str().unwrap();
-    let many = run_fails(&["segment", "plan", scene, "--segments", "7", "-o", out]);
+    let many = fails_with_one_line(&["segment", "plan", scene, "--segments", "7", "-o", out]);
     assert!(
         many.contains("cannot split 6 frames into 7 segments"),
         "{many}"
     );
-    let fade = run_fails(&[
+    let fade = fails_with_one_line(&[
         "segment",
         "plan",
         scene,
@@ -303,7 +292,7 @@ fn bad_plans_and_merges_fail_with_one_clear_line() {
         out,
     ]);
     assert!(fade.contains("raise the overlap"), "{fade}");
-    let past = run_fails(&[
+    let past = fails_with_one_line(&[
         "train",
         scene,
         "--set",

@@ -1,4 +1,5 @@
 //! Shared by the integration tests that run the `tadgs` binary on a tiny demo scene.
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -12,6 +13,24 @@ pub fn tadgs(args: &[&str]) -> Output {
         .env("RUST_LOG", "warn")
         .output()
         .expect("the tadgs binary runs")
+}
+
+/// Runs `tadgs args`, which must succeed, and returns its stdout.
+pub fn run_ok(args: &[&str]) -> String {
+    let out = tadgs(args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Runs `tadgs args`, which must fail with exit code 1, and returns its stderr.
+pub fn run_fails(args: &[&str]) -> String {
+    let out = tadgs(args);
+    assert_eq!(out.status.code(), Some(1), "{args:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
 /// The demo scene shrunk to 6 frames of `width × height` (anchors every 3 frames with
