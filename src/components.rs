@@ -150,7 +150,8 @@ pub struct GradAccum {
 /// 1 and the scene cross-fades from one segment's Gaussians to the next.
 ///
 /// Not an optimised parameter: it has no gradient and Adam state, densification copies it to
-/// clones and splits, and the GPU backend refuses models that carry it.
+/// clones and splits (so a merged model can be trained on through the library), checkpoints do
+/// not keep it, and the GPU backend refuses models that carry it.
 #[derive(Component, Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 #[repr(C)]
 pub struct TimeWindow {
