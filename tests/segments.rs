@@ -107,7 +107,8 @@ fn render(model: &Model, dataset: &Arc<Dataset>, scene_file: &Path, time: f32) -
 /// parses (one array task per segment, the CPUs asked for, requeue), and running each task's
 /// script on this machine trains its segment (a second run of a task leaves it as it is); the
 /// merge job then writes one model that draws exactly the pixels of segment k's own model at
-/// every frame segment k owns, and an even mix between the frames of the boundary; `export`
+/// every frame segment k owns outside the cross-fade (by default the overlap), a mix inside
+/// it, and an even mix half-way between the frames of the boundary; `export`
 /// and `eval` read it, and the GPU backend refuses it.
 #[test]
 fn slurm_tasks_train_the_segments_and_the_merge_draws_each_segment() {
@@ -175,12 +176,18 @@ fn slurm_tasks_train_the_segments_and_the_merge_draws_each_segment() {
     );
     let scene_file = merged_run.join("scene.ron");
     let dataset = Arc::new(tadgs::data::load(&load_scene(&scene_file).unwrap().data).unwrap());
+    // The default cross-fade spans the overlap: 3 frames around the boundary at 2.5.
+    assert_eq!(plan.fade_frames, 3.0);
     for (segment, model) in plan.segments.iter().zip(&segments) {
         for frame in segment.owned_first..=segment.owned_last {
             let t = dataset.frame_time(frame);
             let whole = render(&merged, &dataset, &scene_file, t);
             let own = render(model, &dataset, &scene_file, t);
-            assert_eq!(whole, own, "frame {frame} of {}", segment.run);
+            if (frame as f32 - 2.5).abs() >= plan.fade_frames / 2.0 {
+                assert_eq!(whole, own, "frame {frame} of {}", segment.run);
+            } else {
+                assert_ne!(whole, own, "frame {frame} is in the cross-fade");
+            }
         }
     }
     // Halfway between frames 2 and 3 both segments draw at half opacity.

@@ -66,10 +66,11 @@ pub struct PlanArgs {
     /// Frames each segment trains beyond its own on each side (shared with its neighbour).
     #[arg(long, default_value_t = 5, value_name = "FRAMES")]
     pub overlap: usize,
-    /// Width of the cross-fade between neighbours in the merged model, in frames (at most
-    /// 2·overlap + 1). 1 gives every frame to one segment and blends only between frames.
-    #[arg(long, default_value_t = 1.0, value_name = "FRAMES")]
-    pub fade: f32,
+    /// Width of the cross-fade between neighbours in the merged model, in frames: by default
+    /// the whole overlap (2·overlap + 1, the most allowed); 1 gives every frame to one segment
+    /// and blends only between frames.
+    #[arg(long, value_name = "FRAMES")]
+    pub fade: Option<f32>,
     /// Train each segment N iterations, the scene's schedule stretched as `tadgs train
     /// --iterations` does.
     #[arg(long, value_name = "N")]
@@ -186,7 +187,8 @@ fn plan(args: PlanArgs) -> Result<()> {
         );
     }
     let dataset = load_dataset(&base)?;
-    let plan = SegmentPlan::new(dataset.frame_count, args.segments, args.overlap, args.fade)?;
+    let fade = args.fade.unwrap_or(2.0 * args.overlap as f32 + 1.0);
+    let plan = SegmentPlan::new(dataset.frame_count, args.segments, args.overlap, fade)?;
     create_dir(dir)?;
     let dir = std::path::absolute(dir).with_context(|| format!("resolving {}", dir.display()))?;
     base.absolute_paths();
