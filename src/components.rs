@@ -4,6 +4,7 @@
 //! and an [`Adam`] (first and second moments) of the same shape, so the optimiser, the cloner and
 //! the pruner treat every field alike.
 
+use bevy_ecs::bundle::{Bundle, NoBundleEffect};
 use bevy_ecs::component::{Component, Mutable};
 use bevy_ecs::world::World;
 use bytemuck::{Pod, Zeroable};
@@ -485,11 +486,27 @@ pub fn spawn_gaussians(
     sh_degree: u32,
     gaussians: impl IntoIterator<Item = (GaussianBundle, OptionalBundle)>,
 ) {
+    spawn_gaussians_with(
+        world,
+        sh_degree,
+        gaussians
+            .into_iter()
+            .map(|(bundle, optional)| (bundle, optional, ())),
+    );
+}
+
+/// [`spawn_gaussians`] with `extra` components on each Gaussian (a merged model's
+/// [`TimeWindow`]).
+pub fn spawn_gaussians_with<E: Bundle<Effect: NoBundleEffect>>(
+    world: &mut World,
+    sh_degree: u32,
+    gaussians: impl IntoIterator<Item = (GaussianBundle, OptionalBundle, E)>,
+) {
     let gaussians = gaussians.into_iter();
     if sh_degree > 0 {
         world.spawn_batch(gaussians);
     } else {
-        world.spawn_batch(gaussians.map(|(bundle, _)| bundle));
+        world.spawn_batch(gaussians.map(|(bundle, _, extra)| (bundle, extra)));
     }
 }
 

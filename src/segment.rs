@@ -12,7 +12,7 @@
 //! `scripts/ray_segments.py` submits one Ray task per segment; both only run `tadgs train` and
 //! `tadgs segment merge`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -71,6 +71,16 @@ pub struct PlannedSegment {
 }
 
 impl PlannedSegment {
+    /// Its run folder in the plan folder `plan_dir`.
+    pub fn run_folder(&self, plan_dir: &Path) -> PathBuf {
+        plan_dir.join(&self.run)
+    }
+
+    /// Its scene file in the plan folder `plan_dir` (`segment-K.ron` beside the run folder).
+    pub fn scene_file(&self, plan_dir: &Path) -> PathBuf {
+        plan_dir.join(format!("{}.ron", self.run))
+    }
+
     /// The scene setting that restricts a run to this segment's frames.
     pub fn segment(&self) -> Segment {
         Segment {

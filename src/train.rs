@@ -367,11 +367,7 @@ impl Trainer {
         dataset: Arc<Dataset>,
         model: &Model,
     ) -> Result<Self, GpuError> {
-        if scene.train.backend == crate::scene::BackendKind::Gpu
-            && let Some(what) = model.gpu_unsupported()
-        {
-            return Err(GpuError::Unsupported(what));
-        }
+        model.check_backend(scene.train.backend)?;
         let mut world = World::new();
         insert_resources(&mut world, scene, dataset)?;
         model.spawn_into(&mut world);

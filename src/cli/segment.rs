@@ -140,7 +140,7 @@ fn train_segment(args: SegmentTrainArgs, ui: Ui) -> Result<()> {
             plan.segments.len() - 1
         );
     };
-    let run = dir.join(&segment.run);
+    let run = segment.run_folder(&dir);
     if run.join("model.safetensors").is_file() {
         println!("{} is trained already", run.display());
         return Ok(());
@@ -150,7 +150,7 @@ fn train_segment(args: SegmentTrainArgs, ui: Ui) -> Result<()> {
         argv.extend(["--resume".into(), run.into_os_string()]);
     } else {
         // A folder without a checkpoint holds at most the start of a failed attempt.
-        argv.push(dir.join(format!("{}.ron", segment.run)).into_os_string());
+        argv.push(segment.scene_file(&dir).into_os_string());
         argv.push("--force".into());
     }
     argv.extend(args.train_args.into_iter().map(Into::into));
@@ -195,8 +195,8 @@ fn plan(args: PlanArgs) -> Result<()> {
     base.output = dir.join("merged").to_string_lossy().into_owned();
     write_atomic(&dir.join(BASE_SCENE_FILE), scene_text(&base)?.as_bytes())?;
     for (index, segment) in plan.segments.iter().enumerate() {
-        let scene = plan.segment_scene(&base, index, &dir.join(&segment.run));
-        let path = dir.join(format!("{}.ron", segment.run));
+        let scene = plan.segment_scene(&base, index, &segment.run_folder(&dir));
+        let path = segment.scene_file(&dir);
         write_atomic(&path, scene_text(&scene)?.as_bytes())?;
         println!(
             "{}: frames {} to {} (draws {} to {})",
@@ -345,10 +345,9 @@ fn merge(args: MergeArgs) -> Result<()> {
     let mut base = load_scene(&dir.join(BASE_SCENE_FILE))?;
     let mut models = Vec::with_capacity(plan.segments.len());
     for (index, segment) in plan.segments.iter().enumerate() {
-        let run = dir.join(&segment.run);
+        let run = segment.run_folder(&dir);
         let model_path = run.join("model.safetensors");
         if !model_path.is_file() {
-            let scene_file = dir.join(format!("{}.ron", segment.run));
             if run.join("checkpoint").join(STATE_FILE).is_file() {
                 bail!(
                     "segment {index}: {} has not finished (no model.safetensors): continue it \
@@ -360,7 +359,7 @@ fn merge(args: MergeArgs) -> Result<()> {
             bail!(
                 "segment {index}: {} has no trained model: train it with `tadgs train {}`",
                 run.display(),
-                scene_file.display()
+                segment.scene_file(&dir).display()
             );
         }
         let trained = load_scene(&run.join("scene.ron"))?;
@@ -370,7 +369,7 @@ fn merge(args: MergeArgs) -> Result<()> {
                 "segment {index}: {} was trained with other settings than the plan's \
                  ({difference}); train it again from {}",
                 run.display(),
-                dir.join(format!("{}.ron", segment.run)).display()
+                segment.scene_file(&dir).display()
             );
         }
         models.push(Model::load(&model_path)?);

@@ -13,9 +13,12 @@ use std::path::{Path, PathBuf};
 use bevy_ecs::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
-use crate::components::{GaussianParams, ParamRefs, TimeWindow, spawn_gaussians};
+use crate::components::{
+    GaussianParams, ParamRefs, TimeWindow, spawn_gaussians, spawn_gaussians_with,
+};
+use crate::gpu::GpuError;
 use crate::layout::{SECTION_NAMES, SECTIONS, WIDTHS, gaussians_of, sections_of};
-use crate::scene::{DataSource, ModelConfig, SceneConfig};
+use crate::scene::{BackendKind, DataSource, ModelConfig, SceneConfig};
 
 /// Name of the optional `N × 3` tensor of time windows (start, end, fade) of a merged
 /// segment model.
@@ -108,11 +111,14 @@ impl Model {
         }
     }
 
-    /// Why the GPU backend cannot draw this model, if it cannot: it draws no time windows.
-    pub fn gpu_unsupported(&self) -> Option<&'static str> {
-        self.time_windows
-            .as_ref()
-            .map(|_| "the time windows of a merged segment model")
+    /// Fails when `backend` cannot draw this model: the GPU backend draws no time windows.
+    pub fn check_backend(&self, backend: BackendKind) -> Result<(), GpuError> {
+        if backend == BackendKind::Gpu && self.time_windows.is_some() {
+            return Err(GpuError::Unsupported(
+                "the time windows of a merged segment model",
+            ));
+        }
+        Ok(())
     }
 
     /// A scene that renders this model on its own: its deformation settings (the defaults when
@@ -174,16 +180,13 @@ impl Model {
             .map(|g| (g.bundle(), g.optional_bundle()));
         match &self.time_windows {
             None => spawn_gaussians(world, sh_degree, bundles),
-            Some(windows) if sh_degree > 0 => {
-                world.spawn_batch(bundles.zip(windows.iter().copied()));
-            }
-            Some(windows) => {
-                world.spawn_batch(
-                    bundles
-                        .map(|(bundle, _)| bundle)
-                        .zip(windows.iter().copied()),
-                );
-            }
+            Some(windows) => spawn_gaussians_with(
+                world,
+                sh_degree,
+                bundles
+                    .zip(windows)
+                    .map(|((bundle, optional), window)| (bundle, optional, *window)),
+            ),
         }
     }
 
@@ -488,7 +491,6 @@ mod tests {
         assert_eq!(names, vec![std::ffi::OsString::from("model.safetensors")]);
     }
 
-    /// A truncated file is an error naming the file, never a panic.
     /// Property: a merged model's time windows survive saving, come back as components of
     /// the spawned Gaussians (and out of the world again), and a window with a negative fade
     /// or its ends swapped is refused naming the tensor and row.
@@ -508,7 +510,8 @@ mod tests {
         model.save(&path).unwrap();
         let back = Model::load(&path).unwrap();
         assert_eq!(back.time_windows.as_deref(), Some(windows.as_slice()));
-        assert!(back.gpu_unsupported().is_some());
+        assert!(back.check_backend(BackendKind::Gpu).is_err());
+        assert!(back.check_backend(BackendKind::Cpu).is_ok());
         assert!(
             Model::load(&{
                 let plain = dir.path().join("plain.safetensors");
@@ -555,6 +558,7 @@ mod tests {
         }
     }
 
+    /// A truncated file is an error naming the file, never a panic.
     #[test]
     fn truncated_model_is_an_error() {
         let dir = tempfile::tempdir().unwrap();

@@ -213,22 +213,13 @@ pub fn temporal_opacity(
 /// optimised parameter, so its backward is a scaling of dL/dσ by the same factor.
 #[inline]
 pub fn window_factor(window: &TimeWindow, time: f32) -> f32 {
-    let ramp = |distance_inside: f32| {
-        if window.fade > 0.0 {
-            (distance_inside / window.fade + 0.5).clamp(0.0, 1.0)
-        } else if distance_inside >= 0.0 {
-            1.0
-        } else {
-            0.0
-        }
-    };
-    // With no fade the end is exclusive, so a time on a shared end belongs to one window.
-    let falling = if window.fade > 0.0 {
-        ramp(window.end - time)
+    if window.fade > 0.0 {
+        let ramp = |distance_inside: f32| (distance_inside / window.fade + 0.5).clamp(0.0, 1.0);
+        ramp(time - window.start) * ramp(window.end - time)
     } else {
-        f32::from(time < window.end)
-    };
-    ramp(time - window.start) * falling
+        // The end is exclusive, so a time on a shared end belongs to one window.
+        f32::from((window.start..window.end).contains(&time))
+    }
 }
 
 /// Backward of [`temporal_opacity`]: (dL/d opacity_logit, dL/d temporal_raw) given

@@ -164,11 +164,7 @@ impl Renderer {
     /// holding `model`, for a sequence of `frame_count` frames. Fails only when the scene asks
     /// for the GPU backend and no GPU opens, or the model has what it cannot draw.
     pub fn new(scene: &SceneConfig, model: &Model, frame_count: usize) -> Result<Self, GpuError> {
-        if scene.train.backend == crate::scene::BackendKind::Gpu
-            && let Some(what) = model.gpu_unsupported()
-        {
-            return Err(GpuError::Unsupported(what));
-        }
+        model.check_backend(scene.train.backend)?;
         let mut world = World::new();
         // The extent only scales learning rates and densification: any value renders the same.
         let placeholder = Camera::look_at(
