@@ -266,7 +266,14 @@ fn bad_plans_and_merges_fail_with_one_clear_line() {
     run_ok(&["-q", "segment", "merge", plan]);
     let again = fails_with_one_line(&["segment", "merge", plan]);
     assert!(again.contains("--force"), "{again}");
+    let merged = plan_dir.join("merged");
+    run_ok(&["-q", "eval", merged.to_str().unwrap()]);
+    assert!(merged.join("metrics.json").is_file());
     run_ok(&["-q", "segment", "merge", plan, "--force"]);
+    assert!(
+        !merged.join("metrics.json").exists(),
+        "the replaced model's scores are gone with it"
+    );
 
     let text = std::fs::read_to_string(&plan_file).unwrap();
     std::fs::write(&plan_file, text.replace("owned_first: 3", "owned_first: 2")).unwrap();

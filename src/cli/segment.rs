@@ -101,7 +101,8 @@ pub struct MergeArgs {
     /// The run folder to write the merged model into (default DIR/merged).
     #[arg(long, short, value_name = "DIR")]
     pub output: Option<PathBuf>,
-    /// Replace a merged model already in the output folder.
+    /// Replace a merged model already in the output folder (its evaluation, renders and
+    /// report go with it).
     #[arg(long)]
     pub force: bool,
 }
@@ -385,6 +386,8 @@ fn merge(args: MergeArgs) -> Result<()> {
         );
     }
     let _lock = super::run_folder::RunLock::acquire(&output)?;
+    // A replaced model takes the evaluation, renders and report of the old one with it.
+    super::run_folder::remove_run_outputs(&output)?;
     base.output = std::path::absolute(&output)
         .unwrap_or_else(|_| output.clone())
         .to_string_lossy()
