@@ -14,9 +14,10 @@ use crate::components::{
 use crate::model::deform::{
     fourier_offset, lifespan_fraction, logit, rotation_at, scale_velocity, sigmoid,
 };
+use crate::model::project::in_frustum;
 use crate::raster::{Splat, SplatGrad};
-use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState};
-use crate::scene::{CapPolicy, CloneTime, DensifyConfig, TatForm};
+use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState, ViewSample};
+use crate::scene::{BaselineViews, CapPolicy, CloneTime, DensifyConfig, TatForm};
 
 /// Children of a split have their scales divided by this.
 pub const SPLIT_SCALE_DIVISOR: f32 = 1.6;
@@ -138,9 +139,12 @@ pub fn is_opacity_reset(densify: &DensifyConfig, iterations: u32, i: u32) -> boo
         && u64::from(i) * 10 <= u64::from(iterations) * 9
 }
 
-/// Adds this iteration's view to every visible Gaussian's statistics.
+/// Adds this iteration's view to the statistics of every Gaussian it counts for: those it
+/// draws, and without VAD under [`BaselineViews::InFrustum`] also those in its frustum that
+/// have faded out (gradient 0).
 pub fn accumulate_stats(
     settings: Res<Settings>,
+    sample: Res<ViewSample>,
     buffers: Res<SplatBuffers>,
     mut gaussians: Query<(
         &SplatSlot,
@@ -152,13 +156,27 @@ pub fn accumulate_stats(
 ) {
     let vad = settings.densify.vad;
     let min_opacity = settings.densify.vad_min_opacity;
+    let count_faded = !vad && settings.densify.baseline_views == BaselineViews::InFrustum;
     let (warp, model) = (settings.warp, settings.opacity);
+    let (camera, near_plane) = (&sample.camera, settings.train.near_plane);
     gaussians
         .par_iter_mut()
         .for_each(|(slot, deformed, temporal, warped, mut accum)| {
             let slot = slot.0 as usize;
             let splat = &buffers.splats[slot];
-            if !splat.visible || min_opacity.is_some_and(|m| deformed.opacity <= m) {
+            if min_opacity.is_some_and(|m| deformed.opacity <= m) {
+                return;
+            }
+            let counted = splat.visible
+                || (count_faded
+                    && in_frustum(
+                        Vec3::from_array(deformed.mean),
+                        deformed.rotation,
+                        Vec3::from_array(deformed.scale),
+                        camera,
+                        near_plane,
+                    ));
+            if !counted {
                 return;
             }
             let lifespan = lifespan_fraction(model, temporal.scale, temporal.center, &warp);
@@ -568,6 +586,73 @@ mod tests {
         }
         assert!((mean_gradient(&plain) - 2e-4).abs() < 1e-9);
         assert!(mean_gradient(&vad) > 7.5e-4);
+    }
+
+    /// Without VAD, `InFrustum` counts a Gaussian that has faded out of a view it faces (with
+    /// gradient 0, weight 1) and `Drawn` does not; neither counts one behind the camera, and
+    /// with VAD both count only the drawn one.
+    #[test]
+    fn baseline_views_decide_whether_faded_gaussians_count() {
+        use crate::components::{Temporal, WarpedTime};
+        use crate::data::Camera;
+        use crate::scene::{DataSource, SceneConfig};
+        use crate::systems::splat::project_all;
+        use bevy_ecs::system::RunSystemOnce;
+
+        crate::train::init_task_pool();
+        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, Vec3::Y, 64, 64, 1.0);
+        let gaussian = |z: f32, opacity: f32| Deformed {
+            mean: [0.0, 0.0, z],
+            rotation: [1.0, 0.0, 0.0, 0.0],
+            scale: [0.1; 3],
+            opacity,
+            color: [0.5; 3],
+        };
+        // Drawn; faded out (σ(t) < 1/255) in front of the camera; faded out behind it.
+        let deformed = [gaussian(0.0, 0.5), gaussian(0.5, 1e-4), gaussian(6.0, 1e-4)];
+        let mut splats = Vec::new();
+        project_all(&deformed, &camera, 0.01, &mut splats);
+        assert_eq!(splats.iter().map(|s| s.visible).collect::<Vec<_>>(), [true, false, false]);
+        let counts = |vad: bool, views: BaselineViews| {
+            let data = DataSource::Synthetic(crate::data::synthetic::demo_scene());
+            let mut scene = SceneConfig::new("stats", data);
+            scene.densify.vad = vad;
+            scene.densify.baseline_views = views;
+            scene.train.near_plane = 0.01;
+            let mut world = World::new();
+            world.insert_resource(Settings::new(&scene, 10, 2.0));
+            world.insert_resource(ViewSample {
+                camera,
+                view: None,
+                frame: 0,
+                time: 0.5,
+            });
+            world.insert_resource(SplatBuffers {
+                splats: splats.clone(),
+                ndc_grad_norm: vec![3e-4, 0.0, 0.0],
+                ..Default::default()
+            });
+            let entities: Vec<Entity> = (0..3)
+                .map(|slot| {
+                    let temporal = Temporal {
+                        center: 0.5,
+                        ..Default::default()
+                    };
+                    let parts = (SplatSlot(slot), deformed[slot as usize], temporal);
+                    world.spawn((parts, WarpedTime::default(), GradAccum::default())).id()
+                })
+                .collect();
+            world.run_system_once(accumulate_stats).unwrap();
+            let accum = |e: Entity| *world.get::<GradAccum>(e).unwrap();
+            let counts: Vec<u32> = entities.iter().map(|&e| accum(e).count).collect();
+            // The drawn Gaussian's mean gradient is 3e-4 whatever is counted besides.
+            assert!((mean_gradient(&accum(entities[0])) - 3e-4).abs() < 1e-9);
+            counts
+        };
+        assert_eq!(counts(false, BaselineViews::InFrustum), [1, 1, 0]);
+        assert_eq!(counts(false, BaselineViews::Drawn), [1, 0, 0]);
+        assert_eq!(counts(true, BaselineViews::InFrustum), [1, 0, 0]);
+        assert_eq!(counts(true, BaselineViews::Drawn), [1, 0, 0]);
     }
 
     fn sample(grad_norm: f32, sigma: f32, offset: f32) -> GradSample {

@@ -7,7 +7,7 @@ mod gpu;
 
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tadgs::components::{
@@ -19,8 +19,9 @@ use tadgs::gpu::{GpuAdam, GpuContext, GpuParamGroup, GpuStats, StatsConfig};
 use tadgs::model::deform::TemporalOpacity;
 use tadgs::model::warp::TimeWarp;
 use tadgs::raster::Splat;
-use tadgs::resources::{Settings, SplatBuffers, TrainState};
-use tadgs::scene::{DataSource, SceneConfig};
+use tadgs::data::Camera;
+use tadgs::resources::{Settings, SplatBuffers, TrainState, ViewSample};
+use tadgs::scene::{BaselineViews, DataSource, SceneConfig};
 use tadgs::systems::adam::{ParamGroup, adam_step, position_lr};
 use tadgs::systems::densify::accumulate_stats;
 
@@ -233,6 +234,8 @@ fn gpu_stats_equal_cpu_accumulate_stats() {
                     let mut settings = settings();
                     settings.densify.vad = vad;
                     settings.densify.vad_min_opacity = min_opacity;
+                    // The GPU statistics count the drawn splats only.
+                    settings.densify.baseline_views = BaselineViews::Drawn;
                     (settings.opacity, settings.warp) = (model, warp);
                     let temporal = random_temporal(&mut rng, n, model);
                     // Slots in a shuffled order, so that slot ≠ spawn order.
@@ -242,6 +245,13 @@ fn gpu_stats_equal_cpu_accumulate_stats() {
                     }
                     let mut world = World::new();
                     world.insert_resource(settings.clone());
+                    // Read only to count faded Gaussians, which `Drawn` does not.
+                    world.insert_resource(ViewSample {
+                        camera: Camera::look_at(Vec3::Z, Vec3::ZERO, Vec3::Y, 64, 64, 1.0),
+                        view: None,
+                        frame: 0,
+                        time: 0.0,
+                    });
                     let entities: Vec<Entity> = slots
                         .iter()
                         .map(|&slot| {

@@ -235,6 +235,25 @@ pub fn project_beyond(
     })
 }
 
+/// Whether `cam` sees the Gaussian whatever its opacity, as the 3DGS rasterizer decides which
+/// Gaussians are "visible" (radius > 0) for its densification statistics: in front of the near
+/// plane, a non-degenerate 2D covariance, and a 3σ screen box that overlaps the image.
+/// [`project_beyond`] additionally drops Gaussians fainter than 1/255, which draw nothing.
+pub fn in_frustum(mean: Vec3, quat: [f32; 4], scale: Vec3, cam: &Camera, near_plane: f32) -> bool {
+    let p_z = cam.rotation().row(2).dot(mean) + cam.translation().z;
+    if !(p_z >= near_plane.max(NEAR_PLANE)) {
+        return false;
+    }
+    let e = ewa(mean, quat, scale, cam);
+    let det = e.cov2d[0] * e.cov2d[2] - e.cov2d[1] * e.cov2d[1];
+    if !(det > 0.0) {
+        return false;
+    }
+    let extent = 3.0 * Vec2::new(e.cov2d[0].sqrt(), e.cov2d[2].sqrt());
+    let (lo, hi) = (e.mean2d - extent, e.mean2d + extent);
+    hi.x > 0.0 && hi.y > 0.0 && lo.x < cam.width as f32 && lo.y < cam.height as f32
+}
+
 /// Gradient of a loss with respect to the inputs of [`project`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ProjectGrad {

@@ -306,6 +306,8 @@ pub struct DensifyConfig {
     pub vad: bool,
     /// Implementation option: count a view for VAD only where σ(t) exceeds this.
     pub vad_min_opacity: Option<f32>,
+    /// Without VAD: which views a Gaussian's mean gradient averages over.
+    pub baseline_views: BaselineViews,
     /// Temporally adaptive threshold.
     pub tat: bool,
     /// Formula of the TAT threshold (used when `tat` is on).
@@ -335,6 +337,23 @@ pub struct DensifyConfig {
     pub at_cap: CapPolicy,
     /// The temporal centre of a clone: the parent's (paper) or where its gradient came from.
     pub clone_time: CloneTime,
+}
+
+/// Which views the 3DGS mean gradient (VAD off) averages a Gaussian's gradient over. With VAD
+/// on, a view weighs σ(t), so the views where σ(t) < 1/255 weigh almost nothing either way and
+/// are skipped.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub enum BaselineViews {
+    /// Every view whose frustum holds the Gaussian, drawn or not (3DGS counts every Gaussian
+    /// with a screen radius, and so does the authors' code without VAD): a Gaussian that has
+    /// faded out of a view (σ(t) < 1/255) counts there with gradient 0, which dilutes the mean
+    /// gradient of short-lived Gaussians: what VAD corrects.
+    #[default]
+    InFrustum,
+    /// Only the views that draw it (σ(t) ≥ 1/255), as earlier versions did: this already
+    /// leaves out most of the times a Gaussian is absent, so the baseline takes much of
+    /// VAD's effect.
+    Drawn,
 }
 
 /// Where in time a clone is centred. Not part of the paper, whose children inherit t_i.
@@ -372,6 +391,7 @@ impl Default for DensifyConfig {
         Self {
             vad: true,
             vad_min_opacity: None,
+            baseline_views: BaselineViews::InFrustum,
             tat: true,
             tat_form: TatForm::Paper {
                 beta: 0.3,
