@@ -51,7 +51,8 @@ fn thread_index(lid: u32, wid: vec3<u32>, groups: vec3<u32>) -> u32 {
 
 // The tiles a splat's screen box overlaps, [x0, y0, x1, y1), as `tile_rect` on the CPU.
 fn tile_rect(b: SplatBox) -> vec4<u32> {
-    if b.visible == 0u {
+    // 2: faded out, counted by the statistics but not drawn.
+    if b.visible != 1u {
         return vec4(0u);
     }
     let tiles = vec2(f32(params.tiles_x), f32(params.tiles_y));

@@ -16,7 +16,8 @@
 // - warped: WarpedTime records (dt, dtw), stride 2.
 // - deformed: Deformed records (mean 3, rotation 4, scale 3, opacity, color 3), stride 14.
 // - splats: stride 16: mean2d 2, extent 2, conic 3, depth, color 3, opacity, visible (1 or 0),
-//   3 unused. An invisible splat is all zeros (the CPU's Splat::default()).
+//   faded (1 when culled but inside the 3σ frustum test, under FLAG_MARK_FADED; else 0),
+//   2 unused. An invisible splat is all zeros (the CPU's Splat::default()) but for `faded`.
 // - splat_grads: stride 9, the rasterizer's per-splat gradient layout (src/gpu/raster.rs):
 //   d mean2d 2, d conic 3, d opacity, d color 3.
 // - ndc_grad_norm: one f32 per Gaussian.
@@ -30,6 +31,8 @@ const SPLAT_GRAD_STRIDE: u32 = 9u;
 
 const FLAG_SHARED_PHASE: u32 = 1u;
 const FLAG_SCALE_MOTION: u32 = 2u;
+// Mark the culled splats that the 3σ frustum test keeps (the baseline's statistics).
+const FLAG_MARK_FADED: u32 = 4u;
 const OPACITY_RBF: u32 = 0u;
 
 // f32::MIN_POSITIVE (smallest normal).

@@ -1,8 +1,9 @@
 // Glue of the GPU-resident training pipeline (src/gpu/pipeline.rs).
 //
 // `pack`: the projected splats of `project.wgsl` (16 floats each: mean 2, extent 2, conic 3,
-// depth, colour 3, opacity, visible, padding) → the binner's and the statistics' `SplatBox`
-// records (mean 2, extent 2, depth, visible as u32), the rasterizer's splats (mean 2, extent
+// depth, colour 3, opacity, visible, faded, padding) → the binner's and the statistics'
+// `SplatBox` records (mean 2, extent 2, depth, visible: 1 drawn, 2 faded, else 0), the
+// rasterizer's splats (mean 2, extent
 // 2, conic 3, the exponent cut-off ln(ALPHA_MIN / opacity) − 1e-4, colour 3, opacity) and σ(t)
 // per splat, as `crate::raster::min_power` and `crate::gpu::sort::SplatBox::from` compute them.
 //
@@ -47,7 +48,8 @@ fn pack(
     }
     boxes[b + 4u] = bitcast<u32>(splats[s + 7u]);
     let visible = splats[s + 12u] != 0.0;
-    boxes[b + 5u] = select(0u, 1u, visible);
+    let faded = splats[s + 13u] != 0.0;
+    boxes[b + 5u] = select(select(0u, 2u, faded), 1u, visible);
     let r = i * 12u;
     let alpha = splats[s + 11u];
     for (var k = 0u; k < 7u; k++) {

@@ -1,7 +1,9 @@
 // EWA projection of each deformed Gaussian, one invocation per Gaussian: what
 // systems/splat.rs::project_splat computes with src/model/project.rs::project_beyond,
 // including its culling (σ(t) < 1/255, nearer than the near plane, det cov2d ≤ 0, screen box
-// outside the image), after which the splat is all zeros.
+// outside the image), after which the splat is all zeros. Under FLAG_MARK_FADED a culled splat
+// that src/model/project.rs::in_frustum keeps (too faint, or its opacity-sized box off the
+// image while its 3σ box is not) is marked `faded`.
 
 @group(0) @binding(1) var<storage, read> deformed: array<f32>;
 @group(0) @binding(2) var<storage, read_write> splats: array<f32>;
@@ -39,6 +41,19 @@ fn project_beyond(mean: vec3<f32>, quat: vec4<f32>, scale: vec3<f32>, opacity: f
     return Projected(true, e.mean2d, extent, conic, e.p.z);
 }
 
+// src/model/project.rs::in_frustum: in front of the near plane, det cov2d > 0 and a 3σ screen
+// box overlapping the image, whatever the opacity.
+fn in_frustum(mean: vec3<f32>, quat: vec4<f32>, scale: vec3<f32>) -> bool {
+    let e = ewa(mean, quat, scale);
+    if !(e.p.z >= frame.cull.x) || !(det_2x2(e.cov2d) > 0.0) {
+        return false;
+    }
+    let extent = 3.0 * vec2<f32>(sqrt(e.cov2d.x), sqrt(e.cov2d.z));
+    let lo = e.mean2d - extent;
+    let hi = e.mean2d + extent;
+    return hi.x > 0.0 && hi.y > 0.0 && lo.x < frame.view.x && lo.y < frame.view.y;
+}
+
 @compute @workgroup_size(64)
 fn project(@builtin(global_invocation_id) gid: vec3<u32>,
            @builtin(num_workgroups) groups: vec3<u32>) {
@@ -63,6 +78,8 @@ fn project(@builtin(global_invocation_id) gid: vec3<u32>,
             color.x, color.y, color.z, opacity,
             1.0, 0.0, 0.0, 0.0,
         );
+    } else if (frame.flags & FLAG_MARK_FADED) != 0u && in_frustum(mean, quat, scale) {
+        record[13] = 1.0;
     }
     for (var k = 0u; k < SPLAT_STRIDE; k++) {
         splats[at + k] = record[k];

@@ -1,5 +1,6 @@
 // Densification statistics of one view (systems/densify.rs::accumulate_stats), one invocation
-// per splat slot: a visible splat (and, with a minimum, one whose σ(t) exceeds it) adds its
+// per splat slot: a visible splat or a faded one (`visible` 2, marked only when the baseline
+// counts them; its σ(t) and gradient read 0), with a minimum only where σ(t) exceeds it, adds its
 // gradient norm weighted by σ(t) (VAD) or 1, the weight, its normalised lifespan ψ̄
 // (model/deform.rs::lifespan_fraction through the inverse time warp of model/warp.rs), one to
 // the count, the gradient-weighted offset of the view's time from the centre, and raises the

@@ -49,16 +49,6 @@ pub fn insert_resources(
     scene: &SceneConfig,
     dataset: Arc<Dataset>,
 ) -> Result<(), GpuError> {
-    let densify = &scene.densify;
-    if scene.train.backend == crate::scene::BackendKind::Gpu
-        && !densify.vad
-        && densify.baseline_views == crate::scene::BaselineViews::InFrustum
-    {
-        // The GPU statistics count only the splats it draws.
-        return Err(GpuError::UnsupportedSetting(
-            "`densify.baseline_views: InFrustum` without VAD (set `densify.baseline_views=Drawn`)",
-        ));
-    }
     let first = dataset.train.first();
     let camera = first.map_or(dataset.cameras[0], |v| dataset.cameras[v.camera]);
     let extent = scene_extent(&dataset.scene_rig());

@@ -139,9 +139,16 @@ pub fn is_opacity_reset(densify: &DensifyConfig, iterations: u32, i: u32) -> boo
         && u64::from(i) * 10 <= u64::from(iterations) * 9
 }
 
+/// Whether the statistics also count the views that do not draw a Gaussian but whose frustum
+/// holds it (faded out, σ(t) < 1/255, or only its faint fringe on the image): the 3DGS mean
+/// gradient without VAD ([`BaselineViews::InFrustum`]).
+pub fn counts_faded_views(densify: &DensifyConfig) -> bool {
+    !densify.vad && densify.baseline_views == BaselineViews::InFrustum
+}
+
 /// Adds this iteration's view to the statistics of every Gaussian it counts for: those it
-/// draws, and without VAD under [`BaselineViews::InFrustum`] also those in its frustum that
-/// have faded out (gradient 0).
+/// draws, and without VAD under [`BaselineViews::InFrustum`] also the others its frustum
+/// holds (with gradient 0).
 pub fn accumulate_stats(
     settings: Res<Settings>,
     sample: Res<ViewSample>,
@@ -156,7 +163,7 @@ pub fn accumulate_stats(
 ) {
     let vad = settings.densify.vad;
     let min_opacity = settings.densify.vad_min_opacity;
-    let count_faded = !vad && settings.densify.baseline_views == BaselineViews::InFrustum;
+    let count_faded = counts_faded_views(&settings.densify);
     let (warp, model) = (settings.warp, settings.opacity);
     let (camera, near_plane) = (&sample.camera, settings.train.near_plane);
     gaussians

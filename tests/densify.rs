@@ -1,5 +1,4 @@
-//! Where densification puts a clone in time (`densify.clone_time`), and which backends count
-//! which views.
+//! Where densification puts a clone in time (`densify.clone_time`).
 
 mod tiny;
 
@@ -74,27 +73,4 @@ fn clones_are_centred_where_their_gradient_came_from() {
             "Gaussian {mark}: centres {found:?}, expected {want:?}"
         );
     }
-}
-
-/// The GPU statistics count only drawn splats: a baseline run on the GPU backend that asks
-/// for the 3DGS count (`InFrustum`, the default) is refused before any GPU is opened, with an
-/// error naming the setting; with `Drawn` it gets past that check.
-#[test]
-fn gpu_baseline_needs_drawn_views() {
-    use tadgs::gpu::GpuError;
-    use tadgs::scene::{BackendKind, BaselineViews};
-
-    let (mut config, dataset) = tiny::tiny_demo(32, 24, 60);
-    config.train.backend = BackendKind::Gpu;
-    config.densify.vad = false;
-    let refused = insert_resources(&mut World::new(), &config, dataset.clone());
-    match refused {
-        Err(GpuError::UnsupportedSetting(what)) => {
-            assert!(what.contains("densify.baseline_views=Drawn"), "{what}")
-        }
-        other => panic!("expected the setting to be refused, got {:?}", other.err()),
-    }
-    config.densify.baseline_views = BaselineViews::Drawn;
-    let drawn = insert_resources(&mut World::new(), &config, dataset);
-    assert!(!matches!(drawn, Err(GpuError::UnsupportedSetting(_))));
 }

@@ -1,6 +1,6 @@
 //! The GPU-resident training pipeline (`GpuTraining`, `systems::resident`) against the CPU
 //! schedule: one iteration on a small random scene gives the same render, Adam state and
-//! densification statistics; several iterations with densification (read back, CPU
+//! densification statistics (also the baseline's, which counts faded Gaussians); several iterations with densification (read back, CPU
 //! densification, upload) track the CPU run; and the non-finite gradient check trips.
 //!
 //! Tolerances. The render is held to 1e-4 absolute (the kernels blend in the CPU's order;
@@ -36,7 +36,7 @@ use bytemuck::Pod;
 use tadgs::components::*;
 use tadgs::data::Dataset;
 use tadgs::gpu::{DeformSettings, GpuContext, GpuTraining, ResidentState};
-use tadgs::resources::{Settings, SplatBuffers, TrainState, ViewSample};
+use tadgs::resources::{Settings, SplatBuffers, TrainState, ViewOrder, ViewSample};
 use tadgs::scene::SceneConfig;
 use tadgs::systems::adam::{BETA1, BETA2};
 use tadgs::train::Trainer;
@@ -286,6 +286,38 @@ fn one_resident_iteration_equals_the_cpu_schedule() {
         cpu_time / 3,
         gpu_time / 3
     );
+}
+
+/// Without VAD the 3DGS count (`densify.baseline_views: InFrustum`, the default) also counts
+/// the Gaussians that have faded out of the view (σ(t) < 1/255) inside its frustum: after one
+/// resident iteration the statistics equal the CPU's as in the test above, and far more
+/// Gaussians are counted than drawn (a view at frame 1 with lifespans of ±1 frame: the
+/// Gaussians of anchor 0 are drawn, those of anchors 3 and 5 have faded out).
+#[test]
+fn resident_baseline_counts_faded_gaussians_like_the_cpu() {
+    let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
+        return;
+    };
+    let (mut config, dataset) = small_scene();
+    config.densify.vad = false;
+    config.densify.tat = false;
+    config.model.tow.enabled = false;
+    config.init.lifespan_half_frames = 1.0;
+    let [mut cpu, mut gpu] = trainers(&config, &dataset, &ctx);
+    let at_frame_1 = dataset.train.iter().position(|v| v.frame == 1).unwrap();
+    for trainer in [&mut cpu, &mut gpu] {
+        *trainer.world.resource_mut::<ViewOrder>() = ViewOrder {
+            order: vec![at_frame_1],
+            next: 0,
+        };
+    }
+    cpu.step();
+    gpu.step();
+    gpu.sync();
+    compare_first_step(&mut cpu.world, &mut gpu.world);
+    let drawn = cpu.world.resource::<SplatBuffers>().splats.iter().filter(|s| s.visible).count();
+    let counted = stats(&mut cpu.world).iter().filter(|s| s.count > 0).count();
+    assert!(counted > drawn + 100, "{counted} counted, {drawn} drawn");
 }
 
 /// Six iterations with densification at 3 and 6 (read back, CPU clone/split/prune, upload)

@@ -37,6 +37,7 @@ use crate::model::deform::{ASYMMETRIC_MAX_WIDTH, MotionBasis, TemporalOpacity};
 use crate::model::project::{FOV_CLAMP, LOW_PASS, MIN_OPACITY, NEAR_PLANE};
 use crate::raster::{Splat, SplatGrad};
 use crate::resources::{Settings, TrainState};
+use crate::systems::densify::counts_faded_views;
 
 /// Invocations per workgroup of every kernel here (`WORKGROUP` in the shaders).
 const WORKGROUP: u32 = 64;
@@ -159,6 +160,9 @@ pub struct DeformSettings {
     pub sh_degree: u32,
     /// Gaussians nearer than this camera depth are culled (never below [`NEAR_PLANE`]).
     pub near_plane: f32,
+    /// Mark the culled splats that `in_frustum` keeps (too faint, or only their opacity-sized
+    /// box off the image), for the baseline's statistics under [`crate::scene::BaselineViews::InFrustum`].
+    pub mark_faded: bool,
 }
 
 impl DeformSettings {
@@ -170,6 +174,8 @@ impl DeformSettings {
             scale_motion: settings.model.scale_motion,
             sh_degree: state.sh_degree,
             near_plane: settings.train.near_plane,
+            mark_faded: counts_faded_views(&settings.densify)
+                && state.iteration <= settings.densify.until_iter,
         }
     }
 }
@@ -204,8 +210,9 @@ impl FrameUniform {
             TemporalOpacity::Rbf => (0, 0.0),
             TemporalOpacity::Asymmetric { w_min } => (1, w_min),
         };
-        let flags =
-            u32::from(settings.motion.shared_phase) | (u32::from(settings.scale_motion) << 1);
+        let flags = u32::from(settings.motion.shared_phase)
+            | (u32::from(settings.scale_motion) << 1)
+            | (u32::from(settings.mark_faded) << 2);
         Self {
             rotation: [
                 w.x_axis.extend(0.0).to_array(),

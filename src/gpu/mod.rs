@@ -72,9 +72,6 @@ pub enum GpuError {
     /// The model holds something the GPU backend does not draw.
     #[error("the GPU backend does not draw {0}; use the CPU backend (`backend: Cpu`)")]
     Unsupported(&'static str),
-    /// A training setting that the GPU backend does not implement.
-    #[error("the GPU backend does not implement {0}; or use the CPU backend (`backend: Cpu`)")]
-    UnsupportedSetting(&'static str),
     /// A buffer would exceed what the device can bind in one storage binding.
     #[error(
         "the GPU {what} buffer would need {bytes} bytes, above the device's limit of {limit} bytes per storage binding"

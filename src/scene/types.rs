@@ -340,14 +340,15 @@ pub struct DensifyConfig {
 }
 
 /// Which views the 3DGS mean gradient (VAD off) averages a Gaussian's gradient over. With VAD
-/// on, a view weighs σ(t), so the views where σ(t) < 1/255 weigh almost nothing either way and
-/// are skipped.
+/// on only the views that draw a Gaussian count: a view weighs σ(t), so one where it has faded
+/// out (σ(t) < 1/255) would weigh almost nothing.
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
 pub enum BaselineViews {
-    /// Every view whose frustum holds the Gaussian, drawn or not (3DGS counts every Gaussian
-    /// with a screen radius, and so does the authors' code without VAD): a Gaussian that has
-    /// faded out of a view (σ(t) < 1/255) counts there with gradient 0, which dilutes the mean
-    /// gradient of short-lived Gaussians: what VAD corrects.
+    /// Every view whose frustum holds the Gaussian (in front of the near plane, its 3σ screen
+    /// box on the image), drawn or not: 3DGS counts every Gaussian with a screen radius, and so
+    /// does the authors' code without VAD. A Gaussian that has faded out of a view (σ(t) <
+    /// 1/255) counts there with gradient 0, which dilutes the mean gradient of short-lived
+    /// Gaussians: what VAD corrects.
     #[default]
     InFrustum,
     /// Only the views that draw it (σ(t) ≥ 1/255), as earlier versions did: this already
