@@ -239,6 +239,8 @@ pub fn project_beyond(
 /// Gaussians are "visible" (radius > 0) for its densification statistics: in front of the near
 /// plane, a non-degenerate 2D covariance, and a 3σ screen box that overlaps the image.
 /// [`project_beyond`] additionally drops Gaussians fainter than 1/255, which draw nothing.
+// The negated comparisons put NaN depths and determinants outside.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
 pub fn in_frustum(mean: Vec3, quat: [f32; 4], scale: Vec3, cam: &Camera, near_plane: f32) -> bool {
     let p_z = cam.rotation().row(2).dot(mean) + cam.translation().z;
     if !(p_z >= near_plane.max(NEAR_PLANE)) {
