@@ -3,9 +3,9 @@
 // `pack`: the projected splats of `project.wgsl` (16 floats each: mean 2, extent 2, conic 3,
 // depth, colour 3, opacity, visible, faded, padding) → the binner's and the statistics'
 // `SplatBox` records (mean 2, extent 2, depth, visible: 1 drawn, 2 faded, else 0), the
-// rasterizer's splats (mean 2, extent
-// 2, conic 3, the exponent cut-off ln(ALPHA_MIN / opacity) − 1e-4, colour 3, opacity) and σ(t)
-// per splat, as `crate::raster::min_power` and `crate::gpu::sort::SplatBox::from` compute them.
+// rasterizer's splats (mean 2, extent 2, conic 3, the exponent cut-off
+// ln(ALPHA_MIN / opacity) − 1e-4, colour 3, opacity) and σ(t) per splat, as
+// `crate::raster::min_power` and `crate::gpu::sort::SplatBox::from` compute them.
 //
 // `check`: the smallest flat index of a non-finite value in the parameter gradients, by an
 // atomic minimum into `fault[0]` (which the host sets to 0xffffffff first).

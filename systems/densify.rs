@@ -619,7 +619,10 @@ mod tests {
         let deformed = [gaussian(0.0, 0.5), gaussian(0.5, 1e-4), gaussian(6.0, 1e-4)];
         let mut splats = Vec::new();
         project_all(&deformed, &camera, 0.01, &mut splats);
-        assert_eq!(splats.iter().map(|s| s.visible).collect::<Vec<_>>(), [true, false, false]);
+        assert_eq!(
+            splats.iter().map(|s| s.visible).collect::<Vec<_>>(),
+            [true, false, false]
+        );
         let counts = |vad: bool, views: BaselineViews| {
             let data = DataSource::Synthetic(crate::data::synthetic::demo_scene());
             let mut scene = SceneConfig::new("stats", data);
@@ -646,7 +649,9 @@ mod tests {
                         ..Default::default()
                     };
                     let parts = (SplatSlot(slot), deformed[slot as usize], temporal);
-                    world.spawn((parts, WarpedTime::default(), GradAccum::default())).id()
+                    world
+                        .spawn((parts, WarpedTime::default(), GradAccum::default()))
+                        .id()
                 })
                 .collect();
             world.run_system_once(accumulate_stats).unwrap();

@@ -1,7 +1,7 @@
 //! The GPU-resident training pipeline (`GpuTraining`, `systems::resident`) against the CPU
 //! schedule: one iteration on a small random scene gives the same render, Adam state and
-//! densification statistics (also the baseline's, which counts faded Gaussians); several iterations with densification (read back, CPU
-//! densification, upload) track the CPU run; and the non-finite gradient check trips.
+//! densification statistics (also the baseline's, which counts faded Gaussians); several
+//! iterations with densification (read back, CPU densification, upload) track the CPU run; and the non-finite gradient check trips.
 //!
 //! Tolerances. The render is held to 1e-4 absolute (the kernels blend in the CPU's order;
 //! the deformation and projection agree to f32 rounding, see tests/gpu_deform.rs). Gradients
@@ -315,7 +315,13 @@ fn resident_baseline_counts_faded_gaussians_like_the_cpu() {
     gpu.step();
     gpu.sync();
     compare_first_step(&mut cpu.world, &mut gpu.world);
-    let drawn = cpu.world.resource::<SplatBuffers>().splats.iter().filter(|s| s.visible).count();
+    let drawn = cpu
+        .world
+        .resource::<SplatBuffers>()
+        .splats
+        .iter()
+        .filter(|s| s.visible)
+        .count();
     let counted = stats(&mut cpu.world).iter().filter(|s| s.count > 0).count();
     assert!(counted > drawn + 100, "{counted} counted, {drawn} drawn");
 }

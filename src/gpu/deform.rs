@@ -161,7 +161,8 @@ pub struct DeformSettings {
     /// Gaussians nearer than this camera depth are culled (never below [`NEAR_PLANE`]).
     pub near_plane: f32,
     /// Mark the culled splats that `in_frustum` keeps (too faint, or only their opacity-sized
-    /// box off the image), for the baseline's statistics under [`crate::scene::BaselineViews::InFrustum`].
+    /// box off the image), for the baseline's statistics under
+    /// [`crate::scene::BaselineViews::InFrustum`].
     pub mark_faded: bool,
 }
 
