@@ -24,6 +24,7 @@ pub mod guard;
 pub mod loss;
 pub mod resident;
 pub mod sample_view;
+pub mod smoothness;
 pub mod splat;
 pub mod time_warp;
 
@@ -129,6 +130,7 @@ impl BackendPlugin for CpuBackend {
             (
                 backward::backward_splats,
                 backward::backward_parameters,
+                smoothness::motion_smoothness.run_if(smoothness::smoothing),
                 guard::check_gradients(),
             )
                 .chain()

@@ -378,6 +378,18 @@ fn validate_names_each_bad_field() {
             c.train.visible_adam = true;
             c.train.backend = tadgs::scene::BackendKind::Gpu;
         }),
+        ("train.motion_smoothness.weight", |c| {
+            c.train.motion_smoothness.weight = -0.1
+        }),
+        ("train.motion_smoothness.neighbours", |c| {
+            c.train.motion_smoothness.weight = 0.1;
+            c.train.motion_smoothness.neighbours = 0;
+        }),
+        // The regulariser reads the motion parameters on the CPU.
+        ("train.motion_smoothness.weight", |c| {
+            c.train.motion_smoothness.weight = 0.1;
+            c.train.backend = tadgs::scene::BackendKind::Gpu;
+        }),
     ];
     for (expected, edit) in cases {
         let mut c = minimal_config();

@@ -46,10 +46,16 @@ impl MotionBasis {
         if self.shared_phase { 0 } else { f }
     }
 
-    /// Angle 2πf·dtw/P + φ_f of frequency f (0-based index).
+    /// Angular frequency ω_f = 2πf/P of frequency f (0-based index).
+    #[inline]
+    fn frequency(&self, f: usize) -> f32 {
+        TAU * (f + 1) as f32 / self.period
+    }
+
+    /// Angle ω_f·dtw + φ_f of frequency f (0-based index).
     #[inline]
     fn angle(&self, phase: &[f32; FOURIER_TERMS], f: usize, dtw: f32) -> f32 {
-        TAU * (f + 1) as f32 * dtw / self.period + phase[self.phase_slot(f)]
+        self.frequency(f) * dtw + phase[self.phase_slot(f)]
     }
 }
 
@@ -106,7 +112,50 @@ pub fn fourier_offset_backward(
         // d/dangle (M^c cos + M^s sin) = −M^c sin + M^s cos.
         let d_angle = d_offset.dot(Vec3::from(sin[f]) * c - Vec3::from(cos[f]) * s);
         grad.phase[basis.phase_slot(f)] += d_angle;
-        grad.dtw += d_angle * TAU * (f + 1) as f32 / basis.period;
+        grad.dtw += d_angle * basis.frequency(f);
+    }
+    grad
+}
+
+/// Velocity of the Fourier motion in warped time, d(μ(t) − μ)/d(dtw) =
+/// Σ_f ω_f (M^s_f cos a_f − M^c_f sin a_f) with a_f = ω_f·dtw + φ_f and ω_f = 2πf/P: the
+/// quantity the motion-smoothness regulariser compares between neighbours.
+#[inline]
+pub fn fourier_velocity(
+    cos: &[[f32; 3]; FOURIER_TERMS],
+    sin: &[[f32; 3]; FOURIER_TERMS],
+    phase: &[f32; FOURIER_TERMS],
+    basis: MotionBasis,
+    dtw: f32,
+) -> Vec3 {
+    let mut out = Vec3::ZERO;
+    for f in 0..FOURIER_TERMS {
+        let (s, c) = basis.angle(phase, f, dtw).sin_cos();
+        out += basis.frequency(f) * (Vec3::from(sin[f]) * c - Vec3::from(cos[f]) * s);
+    }
+    out
+}
+
+/// Backward of [`fourier_velocity`] given `d_velocity` = dL/d(velocity), with the warped time
+/// held constant (the regulariser shapes trajectories, not lifespans): `dtw` of the result is 0.
+#[inline]
+pub fn fourier_velocity_backward(
+    cos: &[[f32; 3]; FOURIER_TERMS],
+    sin: &[[f32; 3]; FOURIER_TERMS],
+    phase: &[f32; FOURIER_TERMS],
+    basis: MotionBasis,
+    dtw: f32,
+    d_velocity: Vec3,
+) -> FourierGrad {
+    let mut grad = FourierGrad::default();
+    for f in 0..FOURIER_TERMS {
+        let (s, c) = basis.angle(phase, f, dtw).sin_cos();
+        let w = basis.frequency(f);
+        grad.cos[f] = (d_velocity * (-w * s)).to_array();
+        grad.sin[f] = (d_velocity * (w * c)).to_array();
+        // d/da (M^s cos a − M^c sin a) = −(M^s sin a + M^c cos a).
+        let d_angle = -w * d_velocity.dot(Vec3::from(sin[f]) * s + Vec3::from(cos[f]) * c);
+        grad.phase[basis.phase_slot(f)] += d_angle;
     }
     grad
 }
@@ -479,6 +528,71 @@ mod tests {
             ..paper
         };
         assert!((at(period_two, 0.0) - at(period_two, 1.0)).length() > 0.1);
+    }
+
+    #[test]
+    fn fourier_velocity_is_the_time_derivative_and_its_backward_matches_fd() {
+        let mut rng = rng();
+        for trial in 0..6 {
+            let cos: [[f32; 3]; 4] = std::array::from_fn(|_| uniform(&mut rng, 1.0));
+            let sin: [[f32; 3]; 4] = std::array::from_fn(|_| uniform(&mut rng, 1.0));
+            let phase: [f32; 4] = uniform(&mut rng, 3.0);
+            let dtw = rng.random_range(-1.0..1.0);
+            let d = Vec3::from(uniform::<3>(&mut rng, 1.0));
+            let basis = MotionBasis {
+                shared_phase: trial % 2 == 0,
+                period: [1.0, 4.0, 0.5][trial % 3],
+            };
+            // The velocity is d(offset)/d(dtw), checked per axis by finite differences.
+            let v = fourier_velocity(&cos, &sin, &phase, basis, dtw);
+            for k in 0..3 {
+                let fd = central(
+                    |t| fourier_offset(&cos, &sin, &phase, basis, t)[k],
+                    dtw,
+                    1e-3,
+                );
+                assert_grad("velocity", v[k], fd);
+            }
+            let g = fourier_velocity_backward(&cos, &sin, &phase, basis, dtw, d);
+            assert_eq!(g.dtw, 0.0);
+            let loss = |c: &[[f32; 3]; 4], s: &[[f32; 3]; 4], p: &[f32; 4]| {
+                d.dot(fourier_velocity(c, s, p, basis, dtw))
+            };
+            for f in 0..4 {
+                for k in 0..3 {
+                    let fd = central(
+                        |x| {
+                            let mut c = cos;
+                            c[f][k] = x;
+                            loss(&c, &sin, &phase)
+                        },
+                        cos[f][k],
+                        1e-2,
+                    );
+                    assert_grad("cos", g.cos[f][k], fd);
+                    let fd = central(
+                        |x| {
+                            let mut s = sin;
+                            s[f][k] = x;
+                            loss(&cos, &s, &phase)
+                        },
+                        sin[f][k],
+                        1e-2,
+                    );
+                    assert_grad("sin", g.sin[f][k], fd);
+                }
+                let fd = central(
+                    |x| {
+                        let mut p = phase;
+                        p[f] = x;
+                        loss(&cos, &sin, &p)
+                    },
+                    phase[f],
+                    1e-2,
+                );
+                assert_grad("phase", g.phase[f], fd);
+            }
+        }
     }
 
     #[test]

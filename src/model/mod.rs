@@ -1,8 +1,9 @@
 //! Pure per-Gaussian maths (SPEC §2–4): the temporal warp, the deformation at time t
 //! (motion, opacity, rotation, scale), spherical-harmonics colour and EWA projection, each
 //! with a hand-written backward pass checked against finite differences; and the per-camera
-//! exposure compensation applied to a whole render before the loss ([`exposure`]); and Adam's
-//! update rule ([`adam`]).
+//! exposure compensation applied to a whole render before the loss ([`exposure`]); Adam's
+//! update rule ([`adam`]); and the motion-smoothness regulariser over a neighbour graph
+//! ([`smoothness`]).
 //!
 //! The per-Gaussian maths is allocation-free and works on one Gaussian at a time.
 
@@ -11,13 +12,14 @@ pub mod deform;
 pub mod exposure;
 pub mod project;
 pub mod sh;
+pub mod smoothness;
 pub mod warp;
 
 pub use deform::{
     ASYMMETRIC_MAX_WIDTH, FOURIER_TERMS, FourierGrad, MotionBasis, TemporalOpacity, fourier_offset,
-    fourier_offset_backward, init_temporal_raw, lifespan_fraction, logit, rotation_at,
-    rotation_at_backward, scale_at, scale_at_backward, sigmoid, temporal_opacity,
-    temporal_opacity_backward,
+    fourier_offset_backward, fourier_velocity, fourier_velocity_backward, init_temporal_raw,
+    lifespan_fraction, logit, rotation_at, rotation_at_backward, scale_at, scale_at_backward,
+    sigmoid, temporal_opacity, temporal_opacity_backward,
 };
 pub use exposure::Exposure;
 pub use project::{

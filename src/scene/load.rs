@@ -240,7 +240,8 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 /// and ≥ 0 (`sh_rest_divisor` > 0) with `position_final ≤ position`; background channels
 /// in [0, 1]; `near_plane > 0`; `model.sh_degree ≤ 3`; `model.motion_period > 0`;
 /// `tow.window_frames > 0`, `tow.rho` in (0, 1); `train.lr.temporal_center` 0 with the GPU
-/// backend;
+/// backend; `train.motion_smoothness.weight ≥ 0`, and above 0 only on the CPU backend with
+/// `neighbours` and `rebuild_interval` above 0;
 /// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
 /// `grad_threshold > 0`; `percent_dense > 0`; `interval > 0`; `from_iter ≤ until_iter`;
 /// `prune_opacity` in [0, 1); `vad_min_opacity` in [0, 1) if set; `max_gaussians ≥ 1`;
@@ -331,6 +332,25 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
                 lr.temporal_center
             ),
         );
+    }
+    let smooth = &t.motion_smoothness;
+    at_least("train.motion_smoothness.weight", smooth.weight, 0.0)?;
+    if smooth.weight > 0.0 {
+        nonzero("train.motion_smoothness.neighbours", smooth.neighbours)?;
+        nonzero(
+            "train.motion_smoothness.rebuild_interval",
+            smooth.rebuild_interval,
+        )?;
+        if t.backend == BackendKind::Gpu {
+            return fail(
+                "train.motion_smoothness.weight",
+                format!(
+                    "is {}, but the motion-smoothness regulariser runs on the CPU backend only: \
+                     use `train.backend: Cpu` or `weight: 0`",
+                    smooth.weight
+                ),
+            );
+        }
     }
     if t.visible_adam && t.backend == BackendKind::Gpu {
         return fail(

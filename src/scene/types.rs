@@ -413,6 +413,32 @@ impl Default for DensifyConfig {
     }
 }
 
+/// The motion-smoothness regulariser (`tadgs::model::smoothness`): λ/|E|·Σ‖v_i − v_j‖² over
+/// the edges of a k-nearest-neighbour graph of the Gaussians' positions, v being each motion's
+/// velocity at the sampled time. Not part of the paper; for monocular captures, whose
+/// trajectories one view per instant constrains too little. CPU backend only.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct MotionSmoothness {
+    /// λ, added to the photometric loss (0 = off).
+    pub weight: f32,
+    /// k: each Gaussian is joined to its k nearest (the graph is the union, undirected).
+    pub neighbours: u32,
+    /// Rebuild the graph from the positions at the sampled time every this many iterations,
+    /// and whenever densification changed the population.
+    pub rebuild_interval: u32,
+}
+
+impl Default for MotionSmoothness {
+    fn default() -> Self {
+        Self {
+            weight: 0.0,
+            neighbours: 8,
+            rebuild_interval: 100,
+        }
+    }
+}
+
 /// Learning rates (SPEC §1).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
@@ -519,6 +545,8 @@ pub struct TrainConfig {
     /// momentum alone. In a 4D model most Gaussians live far from the view's time, so this
     /// skips most of the optimiser's work (as gsplat's `visible_adam`). CPU backend only.
     pub visible_adam: bool,
+    /// Motion-smoothness regulariser: neighbouring Gaussians move alike (off by default).
+    pub motion_smoothness: MotionSmoothness,
     /// Learning rates per parameter group.
     pub lr: LearningRates,
     /// Which backend renders and back-propagates.
@@ -543,6 +571,7 @@ impl Default for TrainConfig {
             coarse_until: 0,
             camera_exposure: false,
             visible_adam: false,
+            motion_smoothness: MotionSmoothness::default(),
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
             eval_interval: 0,

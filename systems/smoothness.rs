@@ -1,0 +1,103 @@
+//! The motion-smoothness regulariser (`train.motion_smoothness`, CPU backend): after the
+//! photometric backward pass, adds dL_s/d(motion) to every Gaussian's Fourier gradient, where
+//! L_s penalises neighbours whose velocities differ ([`crate::model::smoothness`]).
+
+use bevy_ecs::prelude::*;
+use glam::Vec3;
+
+use crate::components::{Deformed, Fourier, Grad, WarpedTime};
+use crate::model::deform::{fourier_velocity, fourier_velocity_backward};
+use crate::model::smoothness::{NeighbourGraph, smoothness_backward, smoothness_loss};
+use crate::resources::{Settings, TrainState};
+
+/// The neighbour graph and the per-iteration buffers, kept between iterations. The graph's
+/// indices are the order in which [`motion_smoothness`]'s query visits the Gaussians, which
+/// holds until the population changes.
+#[derive(Default)]
+pub struct SmoothnessBuffers {
+    graph: NeighbourGraph,
+    /// Iteration at which `graph` was built (`None`: never).
+    built_at: Option<u32>,
+    positions: Vec<Vec3>,
+    velocities: Vec<Vec3>,
+    d_velocities: Vec<Vec3>,
+}
+
+/// Run condition: the regulariser has a weight.
+pub fn smoothing(settings: Res<Settings>) -> bool {
+    settings.train.motion_smoothness.weight > 0.0
+}
+
+/// Adds the regulariser's gradient to each [`Grad<Fourier>`], rebuilding the k-nearest graph
+/// (over the positions at the sampled time) every `rebuild_interval` iterations and after
+/// every densification step.
+pub fn motion_smoothness(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    mut gaussians: Query<(&Fourier, &WarpedTime, &Deformed, &mut Grad<Fourier>)>,
+    mut buffers: Local<SmoothnessBuffers>,
+) {
+    let config = &settings.train.motion_smoothness;
+    let motion = settings.motion_basis();
+    let buffers = &mut *buffers;
+    let iteration = state.iteration;
+    // Velocities and positions in the query's order.
+    buffers.velocities.clear();
+    buffers.positions.clear();
+    for (fourier, warped, deformed, _) in gaussians.iter() {
+        buffers.velocities.push(fourier_velocity(
+            &fourier.cos,
+            &fourier.sin,
+            &fourier.phase,
+            motion,
+            warped.dtw,
+        ));
+        buffers.positions.push(Vec3::from_array(deformed.mean));
+    }
+    let stale = match buffers.built_at {
+        None => true,
+        Some(built) => {
+            iteration >= built + config.rebuild_interval
+                // Densification after this graph was built (in the same iteration or later).
+                || state.last_densify.iteration >= built
+                || buffers.graph.len() != buffers.positions.len()
+        }
+    };
+    if stale {
+        buffers.graph = NeighbourGraph::k_nearest(&buffers.positions, config.neighbours as usize);
+        buffers.built_at = Some(iteration);
+        tracing::debug!(
+            iteration,
+            edges = buffers.graph.edge_count(),
+            loss = smoothness_loss(&buffers.velocities, &buffers.graph, config.weight),
+            "motion-smoothness graph rebuilt"
+        );
+    }
+    smoothness_backward(
+        &buffers.velocities,
+        &buffers.graph,
+        config.weight,
+        &mut buffers.d_velocities,
+    );
+    for ((fourier, warped, _, mut grad), &d) in gaussians.iter_mut().zip(&buffers.d_velocities) {
+        if d == Vec3::ZERO {
+            continue;
+        }
+        let g = fourier_velocity_backward(
+            &fourier.cos,
+            &fourier.sin,
+            &fourier.phase,
+            motion,
+            warped.dtw,
+            d,
+        );
+        let grad = &mut grad.0;
+        for f in 0..grad.phase.len() {
+            for k in 0..3 {
+                grad.cos[f][k] += g.cos[f][k];
+                grad.sin[f][k] += g.sin[f][k];
+            }
+            grad.phase[f] += g.phase[f];
+        }
+    }
+}
