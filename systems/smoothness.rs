@@ -5,7 +5,7 @@
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 
-use crate::components::{Deformed, Fourier, Grad, WarpedTime};
+use crate::components::{Deformed, Fourier, Grad, Param, WarpedTime};
 use crate::model::deform::{fourier_velocity, fourier_velocity_backward};
 use crate::model::smoothness::{NeighbourGraph, smoothness_backward, smoothness_loss};
 use crate::resources::{Settings, TrainState};
@@ -41,10 +41,9 @@ pub fn motion_smoothness(
     let motion = settings.motion_basis();
     let buffers = &mut *buffers;
     let iteration = state.iteration;
-    // Velocities and positions in the query's order.
+    // Velocities in the query's order.
     buffers.velocities.clear();
-    buffers.positions.clear();
-    for (fourier, warped, deformed, _) in gaussians.iter() {
+    for (fourier, warped, _, _) in gaussians.iter() {
         buffers.velocities.push(fourier_velocity(
             &fourier.cos,
             &fourier.sin,
@@ -52,7 +51,6 @@ pub fn motion_smoothness(
             motion,
             warped.dtw,
         ));
-        buffers.positions.push(Vec3::from_array(deformed.mean));
     }
     let stale = match buffers.built_at {
         None => true,
@@ -60,10 +58,16 @@ pub fn motion_smoothness(
             iteration >= built + config.rebuild_interval
                 // Densification after this graph was built (in the same iteration or later).
                 || state.last_densify.iteration >= built
-                || buffers.graph.len() != buffers.positions.len()
+                || buffers.graph.len() != buffers.velocities.len()
         }
     };
     if stale {
+        buffers.positions.clear();
+        buffers.positions.extend(
+            gaussians
+                .iter()
+                .map(|(_, _, d, _)| Vec3::from_array(d.mean)),
+        );
         buffers.graph = NeighbourGraph::k_nearest(&buffers.positions, config.neighbours as usize);
         buffers.built_at = Some(iteration);
         tracing::debug!(
@@ -91,13 +95,13 @@ pub fn motion_smoothness(
             warped.dtw,
             d,
         );
-        let grad = &mut grad.0;
-        for f in 0..grad.phase.len() {
-            for k in 0..3 {
-                grad.cos[f][k] += g.cos[f][k];
-                grad.sin[f][k] += g.sin[f][k];
-            }
-            grad.phase[f] += g.phase[f];
+        let added = Fourier {
+            cos: g.cos,
+            sin: g.sin,
+            phase: g.phase,
+        };
+        for (value, add) in grad.0.values_mut().iter_mut().zip(added.values()) {
+            *value += add;
         }
     }
 }

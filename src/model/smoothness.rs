@@ -55,7 +55,6 @@ impl NeighbourGraph {
                     .filter(move |n| n.data != i)
                     .take(k)
                     .flat_map(move |n| [(i, n.data), (n.data, i)])
-                    .collect::<Vec<_>>()
             })
             .collect();
         edges.par_sort_unstable();
