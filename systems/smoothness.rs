@@ -7,8 +7,9 @@ use glam::Vec3;
 
 use crate::components::{Deformed, Fourier, Grad, Param, WarpedTime};
 use crate::model::deform::{fourier_velocity, fourier_velocity_backward};
-use crate::model::smoothness::{NeighbourGraph, smoothness_backward, smoothness_loss};
+use crate::model::smoothness::{NeighbourGraph, Penalty, smoothness_backward, smoothness_loss};
 use crate::resources::{Settings, TrainState};
+use crate::scene::SmoothnessForm;
 
 /// The neighbour graph and the per-iteration buffers, kept between iterations. The graph's
 /// indices are the order in which [`motion_smoothness`]'s query visits the Gaussians, which
@@ -18,6 +19,8 @@ pub struct SmoothnessBuffers {
     graph: NeighbourGraph,
     /// Iteration at which `graph` was built (`None`: never).
     built_at: Option<u32>,
+    /// Positions at the sampled time: gathered when the graph is rebuilt, and every iteration
+    /// for the stretch form, whose edge directions they give.
     positions: Vec<Vec3>,
     velocities: Vec<Vec3>,
     d_velocities: Vec<Vec3>,
@@ -61,19 +64,27 @@ pub fn motion_smoothness(
                 || buffers.graph.len() != buffers.velocities.len()
         }
     };
-    if stale {
+    let stretch = config.form == SmoothnessForm::Stretch;
+    if stale || stretch {
         buffers.positions.clear();
         buffers.positions.extend(
             gaussians
                 .iter()
                 .map(|(_, _, d, _)| Vec3::from_array(d.mean)),
         );
+    }
+    let penalty = if stretch {
+        Penalty::Stretch(&buffers.positions)
+    } else {
+        Penalty::Velocity
+    };
+    if stale {
         buffers.graph = NeighbourGraph::k_nearest(&buffers.positions, config.neighbours as usize);
         buffers.built_at = Some(iteration);
         tracing::debug!(
             iteration,
             edges = buffers.graph.edge_count(),
-            loss = smoothness_loss(&buffers.velocities, &buffers.graph, config.weight),
+            loss = smoothness_loss(&buffers.velocities, &buffers.graph, config.weight, penalty),
             "motion-smoothness graph rebuilt"
         );
     }
@@ -81,6 +92,7 @@ pub fn motion_smoothness(
         &buffers.velocities,
         &buffers.graph,
         config.weight,
+        penalty,
         &mut buffers.d_velocities,
     );
     for ((fourier, warped, _, mut grad), &d) in gaussians.iter_mut().zip(&buffers.d_velocities) {

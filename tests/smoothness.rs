@@ -1,13 +1,15 @@
 //! `train.motion_smoothness`: the regulariser's system adds to each Gaussian's Fourier gradient
 //! exactly dL_s/dθ of L_s = λ/|E|·Σ‖v_i − v_j‖² over the k-nearest graph of the positions at
-//! the sampled time (checked against finite differences of L_s), and touches no other gradient.
+//! the sampled time (checked against finite differences of L_s), and touches no other gradient;
+//! likewise for the stretch form, which penalises only the part of v_i − v_j along the edge.
 
 use glam::Vec3;
 use tadgs::bench::benchmark_world;
 use tadgs::components::{Deformed, Fourier, Grad, Position, Scale, WarpedTime};
 use tadgs::model::deform::{MotionBasis, fourier_velocity};
-use tadgs::model::smoothness::{NeighbourGraph, smoothness_loss};
+use tadgs::model::smoothness::{NeighbourGraph, Penalty, smoothness_loss};
 use tadgs::resources::Settings;
+use tadgs::scene::SmoothnessForm;
 use tadgs::systems::training_schedule;
 
 const WEIGHT: f32 = 0.5;
@@ -22,6 +24,7 @@ type Gaussian = (&'static Fourier, &'static WarpedTime, &'static Deformed);
 #[allow(clippy::type_complexity)]
 fn one_iteration(
     weight: f32,
+    form: SmoothnessForm,
 ) -> (
     MotionBasis,
     Vec<Fourier>,
@@ -33,6 +36,7 @@ fn one_iteration(
         let mut settings = world.resource_mut::<Settings>();
         settings.train.motion_smoothness.weight = weight;
         settings.train.motion_smoothness.neighbours = NEIGHBOURS;
+        settings.train.motion_smoothness.form = form;
     }
     let before: Vec<Fourier> = world
         .query::<Gaussian>()
@@ -56,20 +60,33 @@ fn one_iteration(
 
 #[test]
 fn regulariser_adds_the_finite_difference_gradient_of_its_loss_to_the_motion_only() {
-    let (basis, fourier, at_time, plain) = one_iteration(0.0);
-    let (_, fourier_again, at_time_again, regularised) = one_iteration(WEIGHT);
+    check_form(SmoothnessForm::Velocity);
+}
+
+#[test]
+fn stretch_form_adds_the_finite_difference_gradient_of_its_loss_to_the_motion_only() {
+    check_form(SmoothnessForm::Stretch);
+}
+
+fn check_form(form: SmoothnessForm) {
+    let (basis, fourier, at_time, plain) = one_iteration(0.0, form);
+    let (_, fourier_again, at_time_again, regularised) = one_iteration(WEIGHT, form);
     assert_eq!(fourier, fourier_again, "the two worlds start alike");
     assert_eq!(at_time, at_time_again, "and are evaluated at the same time");
 
     let velocity = |f: &Fourier, dtw: f32| fourier_velocity(&f.cos, &f.sin, &f.phase, basis, dtw);
     let positions: Vec<Vec3> = at_time.iter().map(|(_, p)| *p).collect();
     let graph = NeighbourGraph::k_nearest(&positions, NEIGHBOURS as usize);
+    let penalty = match form {
+        SmoothnessForm::Velocity => Penalty::Velocity,
+        SmoothnessForm::Stretch => Penalty::Stretch(&positions),
+    };
     let velocities: Vec<Vec3> = fourier
         .iter()
         .zip(&at_time)
         .map(|(f, (dtw, _))| velocity(f, *dtw))
         .collect();
-    let loss = smoothness_loss(&velocities, &graph, WEIGHT);
+    let loss = smoothness_loss(&velocities, &graph, WEIGHT, penalty);
     assert!(loss > 0.0, "the moving Gaussians' velocities differ");
 
     let mut checked = 0;
@@ -97,7 +114,7 @@ fn regulariser_adds_the_finite_difference_gradient_of_its_loss_to_the_motion_onl
                 let mut p = fourier[i];
                 p.cos[f][k] = x;
                 v[i] = velocity(&p, dtw);
-                smoothness_loss(&v, &graph, WEIGHT) as f64
+                smoothness_loss(&v, &graph, WEIGHT, penalty) as f64
             };
             let x = fourier[i].cos[f][k];
             let fd = (loss_at(x + h) - loss_at(x - h)) / (2.0 * h as f64);

@@ -15,6 +15,11 @@
 //! while equal velocities mean the two keep their relative position (locally rigid
 //! translation). Dynamic 3D Gaussians' rigidity and Gaussian-Flow's KNN regulariser are of this
 //! family.
+//!
+//! That form also penalises a limb rotating about its joint (the velocity grows with the
+//! distance from the axis). [`Penalty::Stretch`] keeps only the component of v_i − v_j along
+//! the edge, the rate at which the two's distance changes, which every rigid motion leaves at
+//! 0: the infinitesimal form of Dynamic 3D Gaussians' isometry loss.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -93,31 +98,67 @@ impl NeighbourGraph {
     }
 }
 
-/// L_s = weight / |E| · Σ over the graph's edges of ‖v_i − v_j‖² (0 without edges).
-pub fn smoothness_loss(velocities: &[Vec3], graph: &NeighbourGraph, weight: f32) -> f32 {
+/// Which part of a neighbour's relative velocity d = v_i − v_j is penalised.
+#[derive(Clone, Copy, Debug)]
+pub enum Penalty<'a> {
+    /// All of it: ‖d‖².
+    Velocity,
+    /// Its component along the edge, (e·d)² with e = (x_i − x_j)/‖x_i − x_j‖ over these
+    /// positions (in the graph's order): the rate at which the two's distance changes. A rigid
+    /// motion (v = ω × x + c) costs nothing. The positions are held constant in the gradient.
+    Stretch(&'a [Vec3]),
+}
+
+impl Penalty<'_> {
+    /// The penalised part of d = v_i − v_j: d itself, or its projection P·d on the edge. Both
+    /// are P·d for a symmetric, idempotent P, so ‖P·d‖² has gradient 2·P·d in d.
+    fn part(&self, i: usize, j: usize, d: Vec3) -> Vec3 {
+        match self {
+            Penalty::Velocity => d,
+            Penalty::Stretch(positions) => {
+                let e = (positions[i] - positions[j]).normalize_or_zero();
+                e * e.dot(d)
+            }
+        }
+    }
+}
+
+/// L_s = weight / |E| · Σ over the graph's edges of ‖P·(v_i − v_j)‖² (0 without edges).
+pub fn smoothness_loss(
+    velocities: &[Vec3],
+    graph: &NeighbourGraph,
+    weight: f32,
+    penalty: Penalty,
+) -> f32 {
     if graph.edge_count() == 0 {
         return 0.0;
     }
-    // Each edge is in both lists: half the sum over the lists.
     let sum: f32 = (0..graph.len())
         .into_par_iter()
         .map(|i| {
             graph
                 .neighbours(i)
                 .iter()
-                .map(|&j| (velocities[i] - velocities[j as usize]).length_squared())
+                .map(|&j| {
+                    let j = j as usize;
+                    penalty
+                        .part(i, j, velocities[i] - velocities[j])
+                        .length_squared()
+                })
                 .sum::<f32>()
         })
         .sum();
+    // Each edge is in both endpoints' lists.
     weight * 0.5 * sum / graph.edge_count() as f32
 }
 
-/// dL_s/dv_i = 2·weight/|E| · Σ_(j adjacent to i) (v_i − v_j), into `d_velocities` (resized to
-/// the graph's points; zero without edges).
+/// dL_s/dv_i = 2·weight/|E| · Σ_(j adjacent to i) P·(v_i − v_j), into `d_velocities` (resized
+/// to the graph's points; zero without edges).
 pub fn smoothness_backward(
     velocities: &[Vec3],
     graph: &NeighbourGraph,
     weight: f32,
+    penalty: Penalty,
     d_velocities: &mut Vec<Vec3>,
 ) {
     let scale = if graph.edge_count() == 0 {
@@ -132,7 +173,10 @@ pub fn smoothness_backward(
             let sum: Vec3 = graph
                 .neighbours(i)
                 .iter()
-                .map(|&j| v - velocities[j as usize])
+                .map(|&j| {
+                    let j = j as usize;
+                    penalty.part(i, j, v - velocities[j])
+                })
                 .sum();
             scale * sum
         })
@@ -203,7 +247,7 @@ mod tests {
         assert_eq!(three.edge_count(), 3);
         let none = NeighbourGraph::k_nearest(&[], 8);
         assert!(none.is_empty());
-        assert_eq!(smoothness_loss(&[], &none, 1.0), 0.0);
+        assert_eq!(smoothness_loss(&[], &none, 1.0, Penalty::Velocity), 0.0);
     }
 
     #[test]
@@ -211,21 +255,59 @@ mod tests {
         let points = random_points(60, 11);
         let graph = NeighbourGraph::k_nearest(&points, 4);
         let same = vec![Vec3::new(0.3, -1.0, 2.0); points.len()];
-        assert_eq!(smoothness_loss(&same, &graph, 2.0), 0.0);
+        assert_eq!(smoothness_loss(&same, &graph, 2.0, Penalty::Velocity), 0.0);
         let mut grad = Vec::new();
-        smoothness_backward(&same, &graph, 2.0, &mut grad);
+        smoothness_backward(&same, &graph, 2.0, Penalty::Velocity, &mut grad);
         assert!(grad.iter().all(|g| *g == Vec3::ZERO));
 
         let velocities = random_points(60, 12);
         let weight = 0.7;
-        smoothness_backward(&velocities, &graph, weight, &mut grad);
+        smoothness_backward(&velocities, &graph, weight, Penalty::Velocity, &mut grad);
         for i in [0, 17, 59] {
             for k in 0..3 {
                 let fd = central(
                     |x| {
                         let mut v = velocities.clone();
                         v[i][k] = x;
-                        smoothness_loss(&v, &graph, weight)
+                        smoothness_loss(&v, &graph, weight, Penalty::Velocity)
+                    },
+                    velocities[i][k],
+                    1e-2,
+                );
+                assert_grad("velocity", grad[i][k], fd);
+            }
+        }
+    }
+
+    #[test]
+    fn stretch_ignores_rigid_motion_and_its_gradient_matches_fd() {
+        let points = random_points(80, 21);
+        let graph = NeighbourGraph::k_nearest(&points, 5);
+        let stretch = Penalty::Stretch(&points);
+        // v = ω × x + c: a rigid motion, which moves neighbours apart nowhere.
+        let (omega, c) = (Vec3::new(0.4, -1.3, 0.7), Vec3::new(2.0, 0.5, -1.0));
+        let rigid: Vec<Vec3> = points.iter().map(|&x| omega.cross(x) + c).collect();
+        assert!(smoothness_loss(&rigid, &graph, 1.0, stretch) < 1e-9);
+        assert!(smoothness_loss(&rigid, &graph, 1.0, Penalty::Velocity) > 1e-2);
+        // v = x: a uniform expansion stretches every edge by its own length, (e·d)² = ‖d‖².
+        let expand: Vec<Vec3> = points.clone();
+        let (s, v) = (
+            smoothness_loss(&expand, &graph, 1.0, stretch),
+            smoothness_loss(&expand, &graph, 1.0, Penalty::Velocity),
+        );
+        assert!((s - v).abs() <= 1e-5 * v, "{s} vs {v}");
+
+        let velocities = random_points(80, 22);
+        let weight = 0.9;
+        let mut grad = Vec::new();
+        smoothness_backward(&velocities, &graph, weight, stretch, &mut grad);
+        for i in [0, 33, 79] {
+            for k in 0..3 {
+                let fd = central(
+                    |x| {
+                        let mut v = velocities.clone();
+                        v[i][k] = x;
+                        smoothness_loss(&v, &graph, weight, stretch)
                     },
                     velocities[i][k],
                     1e-2,

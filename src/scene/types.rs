@@ -415,7 +415,8 @@ impl Default for DensifyConfig {
 
 /// The motion-smoothness regulariser (`tadgs::model::smoothness`): λ/|E|·Σ‖v_i − v_j‖² over
 /// the edges of a k-nearest-neighbour graph of the Gaussians' positions, v being each motion's
-/// velocity at the sampled time. Not part of the paper; for monocular captures, whose
+/// velocity at the sampled time (or, with [`SmoothnessForm::Stretch`], only the part of
+/// v_i − v_j along the edge). Not part of the paper; for monocular captures, whose
 /// trajectories one view per instant constrains too little. CPU backend only.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
@@ -427,6 +428,20 @@ pub struct MotionSmoothness {
     /// Rebuild the graph from the positions at the sampled time every this many iterations,
     /// and whenever densification changed the population.
     pub rebuild_interval: u32,
+    /// Which part of a neighbour's relative velocity is penalised.
+    pub form: SmoothnessForm,
+}
+
+/// Which part of the relative velocity v_i − v_j of two neighbours the regulariser penalises.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub enum SmoothnessForm {
+    /// All of it: neighbours should move alike (a rotation about a joint costs).
+    #[default]
+    Velocity,
+    /// Only its component along the edge, ((x_i − x_j)/‖x_i − x_j‖ · (v_i − v_j))²: the rate
+    /// at which the neighbours' distance changes. Any rigid motion, rotations included, costs
+    /// nothing (the infinitesimal form of an isometry prior).
+    Stretch,
 }
 
 impl Default for MotionSmoothness {
@@ -435,6 +450,7 @@ impl Default for MotionSmoothness {
             weight: 0.0,
             neighbours: 8,
             rebuild_interval: 100,
+            form: SmoothnessForm::Velocity,
         }
     }
 }
