@@ -261,15 +261,26 @@ mod tests {
         assert!(grad.iter().all(|g| *g == Vec3::ZERO));
 
         let velocities = random_points(60, 12);
-        let weight = 0.7;
-        smoothness_backward(&velocities, &graph, weight, Penalty::Velocity, &mut grad);
-        for i in [0, 17, 59] {
+        assert_gradient_matches_fd(&velocities, &graph, 0.7, Penalty::Velocity, [0, 17, 59]);
+    }
+
+    /// smoothness_backward against central differences of smoothness_loss at Gaussians `at`.
+    fn assert_gradient_matches_fd(
+        velocities: &[Vec3],
+        graph: &NeighbourGraph,
+        weight: f32,
+        penalty: Penalty,
+        at: [usize; 3],
+    ) {
+        let mut grad = Vec::new();
+        smoothness_backward(velocities, graph, weight, penalty, &mut grad);
+        for i in at {
             for k in 0..3 {
                 let fd = central(
                     |x| {
-                        let mut v = velocities.clone();
+                        let mut v = velocities.to_vec();
                         v[i][k] = x;
-                        smoothness_loss(&v, &graph, weight, Penalty::Velocity)
+                        smoothness_loss(&v, graph, weight, penalty)
                     },
                     velocities[i][k],
                     1e-2,
@@ -298,22 +309,6 @@ mod tests {
         assert!((s - v).abs() <= 1e-5 * v, "{s} vs {v}");
 
         let velocities = random_points(80, 22);
-        let weight = 0.9;
-        let mut grad = Vec::new();
-        smoothness_backward(&velocities, &graph, weight, stretch, &mut grad);
-        for i in [0, 33, 79] {
-            for k in 0..3 {
-                let fd = central(
-                    |x| {
-                        let mut v = velocities.clone();
-                        v[i][k] = x;
-                        smoothness_loss(&v, &graph, weight, stretch)
-                    },
-                    velocities[i][k],
-                    1e-2,
-                );
-                assert_grad("velocity", grad[i][k], fd);
-            }
-        }
+        assert_gradient_matches_fd(&velocities, &graph, 0.9, stretch, [0, 33, 79]);
     }
 }
