@@ -118,7 +118,7 @@ pub fn adam_step<P: ParamGroup>(
     buffers: Option<Res<SplatBuffers>>,
     mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>, Option<&SplatSlot>)>,
 ) {
-    let lr = &settings.train.lr;
+    let lr = &settings.train.rates_at(state.iteration);
     let rates = P::learning_rates(
         lr,
         position_lr(

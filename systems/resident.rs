@@ -351,7 +351,7 @@ pub fn resident_adam(
     mut gpu: ResMut<GpuTraining>,
     mut rates: Local<[Vec<f32>; SECTIONS]>,
 ) {
-    let lr = &settings.train.lr;
+    let lr = &settings.train.rates_at(state.iteration);
     let plr = position_lr(
         lr,
         state.iteration,

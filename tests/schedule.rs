@@ -490,3 +490,49 @@ fn camera_exposure_learns_a_darker_cameras_gain() {
     assert!(summary.starts_with("gain 0."), "{summary}");
     assert!(summary.contains("(camera 0) to"), "{summary}");
 }
+
+/// Static warm-up (`train.static_until: 5`): after iterations 1–5 every Gaussian's motion
+/// terms (Fourier coefficients and phases, rotation and log-scale linear terms) and temporal
+/// parameters are bit-identical to their initial values while the positions have moved; five
+/// iterations later the motion has started to learn.
+#[test]
+fn static_warm_up_freezes_motion_and_lifespans() {
+    type TimeTerms = (Fourier, Temporal, [[f32; 4]; 1], [[f32; 3]; 1]);
+    let snapshot = |trainer: &mut Trainer| -> Vec<(Entity, TimeTerms, Position)> {
+        let world = &mut trainer.world;
+        world
+            .query::<(Entity, &Fourier, &Temporal, &Rotation, &Scale, &Position)>()
+            .iter(world)
+            .map(|(e, f, t, r, s, p)| (e, (*f, *t, [r.c1], [s.d1]), *p))
+            .collect()
+    };
+    let (mut config, dataset) = tiny_scene();
+    config.train.static_until = 5;
+    let mut trainer = Trainer::new(&config, dataset);
+    let initial = snapshot(&mut trainer);
+    for _ in 0..5 {
+        trainer.step();
+    }
+    let warm = snapshot(&mut trainer);
+    assert_eq!(initial.len(), warm.len(), "no densification in the warm-up");
+    let mut moved = 0;
+    for ((e0, time0, p0), (e1, time1, p1)) in initial.iter().zip(&warm) {
+        assert_eq!(e0, e1);
+        assert_eq!(time0, time1, "time-dependent terms changed in the warm-up");
+        moved += usize::from(p0 != p1);
+    }
+    assert!(moved > initial.len() / 2, "only {moved} positions moved");
+    for _ in 0..5 {
+        trainer.step();
+    }
+    let after = snapshot(&mut trainer);
+    let learning = after
+        .iter()
+        .zip(&warm)
+        .filter(|((_, (f1, ..), _), (_, (f0, ..), _))| f1 != f0)
+        .count();
+    assert!(
+        learning > warm.len() / 2,
+        "only {learning} trajectories changed after the warm-up"
+    );
+}

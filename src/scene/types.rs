@@ -75,7 +75,8 @@ impl SceneConfig {
     /// densification starts and ends at the same fractions of the run, opacity resets and SH
     /// degree increases come as often relative to its length. The densification interval is
     /// kept: it is the number of views each step's statistics gather, not a share of the run.
-    /// The coarse-to-fine switch (`train.coarse_until`) moves with the run too.
+    /// The coarse-to-fine switch (`train.coarse_until`) and the end of the static warm-up
+    /// (`train.static_until`) move with the run too.
     pub fn scale_schedule(&mut self, iterations: u32) {
         let old = self.train.iterations.max(1) as f64;
         let factor = iterations as f64 / old;
@@ -88,6 +89,7 @@ impl SceneConfig {
         };
         self.train.sh_increase_interval = scale(self.train.sh_increase_interval).max(1);
         self.train.coarse_until = scale(self.train.coarse_until);
+        self.train.static_until = scale(self.train.static_until);
         self.train.iterations = iterations;
     }
 }
@@ -513,6 +515,23 @@ impl Default for LearningRates {
     }
 }
 
+impl LearningRates {
+    /// These rates with every time-dependent term's rate at 0: the motion (Fourier
+    /// coefficients and phases, rotation and log-scale linear terms) and the temporal opacity
+    /// (widths and centres). What the static warm-up trains with.
+    pub fn frozen_in_time(&self) -> Self {
+        Self {
+            fourier_cos_sin: 0.0,
+            fourier_phase: 0.0,
+            temporal_scale: 0.0,
+            temporal_center: 0.0,
+            rotation_velocity: 0.0,
+            scale_velocity: 0.0,
+            ..self.clone()
+        }
+    }
+}
+
 /// Which backend runs splatting.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
 pub enum BackendKind {
@@ -548,6 +567,13 @@ pub struct TrainConfig {
     pub coarse_downscale: u32,
     /// Last iteration trained at the coarse resolution (see `coarse_downscale`).
     pub coarse_until: u32,
+    /// Static warm-up: during the first `static_until` iterations the Gaussians neither move
+    /// nor change their lifespans (the motion terms — Fourier coefficients and phases, the
+    /// rotation and log-scale linear terms — and the temporal widths and centres keep their
+    /// initial values), so a static model is fitted to every view before the trajectories
+    /// start to learn, as in the static first stage of deformation-field methods
+    /// (4DGaussians, Deformable 3D Gaussians). 0 = off (the paper).
+    pub static_until: u32,
     /// Learn an affine colour per training camera (`exp(log_gain)·render + offset` per
     /// channel, applied before the loss) that absorbs the cameras' differences in exposure and
     /// white balance, so that the Gaussians need not average them into blur. For multi-camera
@@ -574,6 +600,18 @@ pub struct TrainConfig {
     pub checkpoint_interval: u32,
 }
 
+impl TrainConfig {
+    /// The learning rates of iteration `iteration` (1-based): `lr`, with the time-dependent
+    /// terms frozen during the static warm-up (`static_until`).
+    pub fn rates_at(&self, iteration: u32) -> LearningRates {
+        if iteration <= self.static_until {
+            self.lr.frozen_in_time()
+        } else {
+            self.lr.clone()
+        }
+    }
+}
+
 impl Default for TrainConfig {
     fn default() -> Self {
         Self {
@@ -585,6 +623,7 @@ impl Default for TrainConfig {
             sh_increase_interval: 1000,
             coarse_downscale: 1,
             coarse_until: 0,
+            static_until: 0,
             camera_exposure: false,
             visible_adam: false,
             motion_smoothness: MotionSmoothness::default(),
