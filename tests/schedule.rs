@@ -293,16 +293,19 @@ fn degree_zero_models_store_no_higher_bands() {
 }
 
 /// `scale_schedule` keeps the shape of every shipped scene's schedule at any run length: the
-/// densification window starts and ends at the same fractions of the run, opacity resets come
-/// as often relative to its length, and no opacity reset falls in the last 10 % of the run.
+/// densification window, the coarse-to-fine switch and the static warm-up's end fall at the
+/// same fractions of the run, opacity resets come as often relative to its length, and no
+/// opacity reset falls in the last 10 % of the run.
 #[test]
 fn scaled_schedules_keep_their_shape_and_never_reset_late() {
     use tadgs::scene::load_scene;
     use tadgs::systems::densify::is_opacity_reset;
     let scenes = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes");
     for name in ["demo", "panoptic", "dnerf", "n3dv"] {
-        let file = load_scene(std::path::Path::new(&format!("{scenes}/{name}.ron")))
+        let mut file = load_scene(std::path::Path::new(&format!("{scenes}/{name}.ron")))
             .unwrap_or_else(|e| panic!("{name}: {e}"));
+        // No shipped file has a static warm-up; give each one to check that it stretches too.
+        file.train.static_until = file.train.iterations / 10;
         let resets = |c: &SceneConfig| {
             (1..=c.train.iterations)
                 .filter(|&i| is_opacity_reset(&c.densify, c.train.iterations, i))
@@ -318,6 +321,8 @@ fn scaled_schedules_keep_their_shape_and_never_reset_late() {
             for (new, old) in [
                 (scaled.densify.from_iter, file.densify.from_iter),
                 (scaled.densify.until_iter, file.densify.until_iter),
+                (scaled.train.coarse_until, file.train.coarse_until),
+                (scaled.train.static_until, file.train.static_until),
             ] {
                 let gap = (fraction(new, &scaled) - fraction(old, &file)).abs();
                 assert!(gap <= 1.0 / iterations as f64, "{what}: {new} vs {old}");
