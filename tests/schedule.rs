@@ -502,13 +502,13 @@ fn camera_exposure_learns_a_darker_cameras_gain() {
 /// iterations later the motion has started to learn.
 #[test]
 fn static_warm_up_freezes_motion_and_lifespans() {
-    type TimeTerms = (Fourier, Temporal, [[f32; 4]; 1], [[f32; 3]; 1]);
+    type TimeTerms = (Fourier, Temporal, [f32; 4], [f32; 3]);
     let snapshot = |trainer: &mut Trainer| -> Vec<(Entity, TimeTerms, Position)> {
         let world = &mut trainer.world;
         world
             .query::<(Entity, &Fourier, &Temporal, &Rotation, &Scale, &Position)>()
             .iter(world)
-            .map(|(e, f, t, r, s, p)| (e, (*f, *t, [r.c1], [s.d1]), *p))
+            .map(|(e, f, t, r, s, p)| (e, (*f, *t, r.c1, s.d1), *p))
             .collect()
     };
     let (mut config, dataset) = tiny_scene();
