@@ -142,6 +142,9 @@ pub struct ViewSample {
     pub frame: usize,
     /// Normalised time in [0, 1].
     pub time: f32,
+    /// Colour the render is composited over: `train.background`, or this iteration's random
+    /// colour with `train.random_background` (the truth is then recomposited over it too).
+    pub background: [f32; 3],
 }
 
 /// Random order of the training views (indices into the dataset's `train`), reshuffled every

@@ -58,6 +58,7 @@ pub fn insert_resources(
         view: first.map(|_| 0),
         frame: first.map_or(0, |v| v.frame),
         time: first.map_or(0.0, |v| v.time),
+        background: scene.train.background,
     };
     let train = &scene.train;
     if train.coarse_downscale > 1 && train.coarse_until > 0 {
@@ -97,6 +98,7 @@ pub fn insert_render_resources(
         view: None,
         frame: 0,
         time: 0.0,
+        background: scene.train.background,
     });
     // The systems tell the backends apart by the resources they find: `GpuTraining` runs the
     // whole iteration on the GPU, its absence the CPU schedule.
@@ -509,11 +511,13 @@ impl Trainer {
     /// Renders the model from `camera` at normalised time `time`.
     pub fn render(&mut self, camera: &Camera, time: f32) -> RenderOutput {
         let frame = self.world.resource::<ViewSample>().frame;
+        let background = self.world.resource::<Settings>().train.background;
         *self.world.resource_mut::<ViewSample>() = ViewSample {
             camera: *camera,
             view: None,
             frame,
             time,
+            background,
         };
         self.render.run(&mut self.world);
         self.world.resource::<SplatBuffers>().render.clone()

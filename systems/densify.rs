@@ -636,6 +636,7 @@ mod tests {
                 view: None,
                 frame: 0,
                 time: 0.5,
+                background: scene.train.background,
             });
             world.insert_resource(SplatBuffers {
                 splats: splats.clone(),

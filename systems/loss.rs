@@ -8,7 +8,8 @@ use crate::resources::{
     TrainState, TrainingViews, ViewSample, views_at,
 };
 
-/// Compares the render with the ground-truth image of the sampled view. With
+/// Compares the render with the ground-truth image of the sampled view, recomposited over the
+/// sampled background where that differs from the one the image was composited over. With
 /// [`CameraExposures`] the render is first corrected by the sampled camera's exposure, and the
 /// gradient is chained back through the correction (its own gradient kept for the Adam stage).
 pub fn loss(
@@ -41,6 +42,11 @@ pub fn loss(
             ..LossValue::default()
         };
         return;
+    }
+    if let Some(matte) = &view.matte
+        && sample.background != matte.background
+    {
+        matte.recomposite(&mut loss.target, sample.background);
     }
     let render = &buffers.render.image;
     let lambda_dssim = settings.train.lambda_dssim;

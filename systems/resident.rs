@@ -225,7 +225,7 @@ pub fn resident_forward(
         &warped,
         &sample.camera,
         &deform,
-        settings.train.background,
+        sample.background,
         &mut buffers.render,
     )?;
     Ok(())

@@ -1,6 +1,7 @@
 //! Picks the training view (camera, frame) of the iteration and advances the counters.
 
 use bevy_ecs::prelude::*;
+use rand::Rng as _;
 use rand::seq::SliceRandom;
 
 use crate::resources::{
@@ -21,8 +22,11 @@ pub fn advance_iteration(settings: Res<Settings>, mut state: ResMut<TrainState>)
 pub const PREFETCH_VIEWS: usize = 4;
 
 /// Samples a training view uniformly without replacement within an epoch (from the coarse
-/// views while coarse-to-fine training is in its coarse stage).
+/// views while coarse-to-fine training is in its coarse stage), and the background colour to
+/// render it over: with `train.random_background`, a uniform random colour for views with an
+/// alpha matte.
 pub fn sample_view(
+    settings: Res<Settings>,
     views: Res<TrainingViews>,
     coarse: Option<Res<CoarseViews>>,
     state: Res<TrainState>,
@@ -44,10 +48,16 @@ pub fn sample_view(
         dataset.train[ahead].image.prefetch();
     }
     let view = &dataset.train[index];
+    let background = if settings.train.random_background && view.matte.is_some() {
+        std::array::from_fn(|_| rng.0.random::<f32>())
+    } else {
+        settings.train.background
+    };
     *sample = ViewSample {
         camera: dataset.cameras[view.camera],
         view: Some(index),
         frame: view.frame,
         time: view.time,
+        background,
     };
 }

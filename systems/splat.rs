@@ -33,7 +33,7 @@ pub fn splat(
         &mut buffers.splats,
     );
     let (width, height) = (camera.width as usize, camera.height as usize);
-    let background = settings.train.background;
+    let background = sample.background;
     match gpu {
         Some(mut gpu) => gpu.forward(
             &buffers.splats,

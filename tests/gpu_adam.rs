@@ -253,6 +253,7 @@ fn gpu_stats_equal_cpu_accumulate_stats() {
                         view: None,
                         frame: 0,
                         time: 0.0,
+                        background: [0.0; 3],
                     });
                     let entities: Vec<Entity> = slots
                         .iter()

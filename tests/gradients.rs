@@ -58,6 +58,8 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
         view: Some(7),
         frame: 7,
         time: 0.7,
+
+        ..*world.resource::<ViewSample>()
     };
 
     // Wide, semi-transparent Gaussians near the optical axis: every pixel sees every Gaussian

@@ -541,3 +541,55 @@ fn static_warm_up_freezes_motion_and_lifespans() {
         "only {learning} trajectories changed after the warm-up"
     );
 }
+
+/// `train.random_background` on views whose matte says they show nothing (alpha 0 over a
+/// white truth), with every Gaussian recoloured white: over the fixed white background the
+/// Gaussians cost almost no loss and keep most of their opacity; over random backgrounds
+/// they cost loss wherever they cover the image, and after 60 iterations their mean spatial
+/// opacity is below half of the fixed-background run's.
+#[test]
+fn random_background_fades_gaussians_of_the_background_colour() {
+    use tadgs::data::Matte;
+    use tadgs::model::deform::sigmoid;
+    use tadgs::model::sh::rgb_to_sh_dc;
+    let mean_opacity_after = |random: bool| -> (f32, f32) {
+        let (mut config, dataset) = tiny_scene();
+        let mut data = (*dataset).clone();
+        for view in &mut data.train {
+            let (w, h) = view.image.dimensions();
+            view.image = image::RgbImage::from_pixel(w, h, image::Rgb([255; 3])).into();
+            view.matte = Some(Matte {
+                alpha: vec![0; (w * h) as usize],
+                background: [1.0; 3],
+            });
+        }
+        config.train.background = [1.0; 3];
+        config.train.random_background = random;
+        config.densify.until_iter = 0;
+        let mut trainer = Trainer::new(&config, Arc::new(data));
+        let world = &mut trainer.world;
+        for mut color in world.query::<&mut Color>().iter_mut(world) {
+            color.dc = [rgb_to_sh_dc(1.0); 3];
+        }
+        for mut rest in world.query::<&mut ColorRest>().iter_mut(world) {
+            *rest = ColorRest::default();
+        }
+        let mean = |world: &mut World| {
+            let opacities: Vec<f32> = world
+                .query::<&Opacity>()
+                .iter(world)
+                .map(|o| sigmoid(o.logit))
+                .collect();
+            opacities.iter().sum::<f32>() / opacities.len() as f32
+        };
+        let before = mean(world);
+        for _ in 0..60 {
+            trainer.step();
+        }
+        (before, mean(&mut trainer.world))
+    };
+    let (start, fixed) = mean_opacity_after(false);
+    let (_, random) = mean_opacity_after(true);
+    assert!(fixed > 0.5 * start, "fixed background: {start} → {fixed}");
+    assert!(random < 0.5 * fixed, "random {random} against fixed {fixed}");
+}

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::error::{check_downscale, open_image, read_text};
 use super::settings::{self, check_background, check_downscale_factor};
-use super::{Camera, DataError, Dataset, View};
+use super::{Camera, DataError, Dataset, Matte, View};
 use crate::io::image::box_filter;
 use crate::scene::FieldError;
 
@@ -124,7 +124,7 @@ pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
         .map(|(camera_index, &(is_train, frame_index, angle, frame))| {
             let rgba = open_image(&frame.image_path)?.into_rgba8();
             check_downscale(&frame.image_path, rgba.dimensions(), source.downscale)?;
-            let (image, foreground) =
+            let (image, foreground, matte) =
                 composite_downscaled(&rgba, source.downscale, source.background);
             let (width, height) = image.dimensions();
             let focal = (0.5 * f64::from(width) / (0.5 * angle).tan()) as f32;
@@ -144,6 +144,7 @@ pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
                 image: image.into(),
                 dynamic_mask: None,
                 foreground: Some(foreground),
+                matte: Some(matte),
             };
             Ok((is_train, camera, view))
         })
@@ -250,15 +251,17 @@ pub(crate) fn blender_to_opencv_w2c(camera_to_world: DMat4) -> DMat4 {
 }
 
 /// Box-filters the RGBA image by `factor` (straight alpha, as D-NeRF's area resize does),
-/// composites it over `background` and returns the 8-bit RGB image and the alpha > 0.5 mask.
+/// composites it over `background` and returns the 8-bit RGB image, the alpha > 0.5 mask and
+/// the matte (the filtered alpha with `background`).
 pub(crate) fn composite_downscaled(
     rgba: &image::RgbaImage,
     factor: u32,
     background: [f32; 3],
-) -> (image::RgbImage, Vec<bool>) {
+) -> (image::RgbImage, Vec<bool>, Matte) {
     let norm = 1.0 / (255.0 * (factor * factor) as f32);
-    let mut foreground =
-        Vec::with_capacity((rgba.width() / factor) as usize * (rgba.height() / factor) as usize);
+    let pixels = (rgba.width() / factor) as usize * (rgba.height() / factor) as usize;
+    let mut foreground = Vec::with_capacity(pixels);
+    let mut coverage = Vec::with_capacity(pixels);
     let image = box_filter(rgba, factor, |sum, out| {
         let alpha = sum[3] as f32 * norm;
         for c in 0..3 {
@@ -266,8 +269,13 @@ pub(crate) fn composite_downscaled(
             out[c] = (value.clamp(0.0, 1.0) * 255.0).round() as u8;
         }
         foreground.push(alpha > 0.5);
+        coverage.push((alpha * 255.0).round() as u8);
     });
-    (image, foreground)
+    let matte = Matte {
+        alpha: coverage,
+        background,
+    };
+    (image, foreground, matte)
 }
 
 #[cfg(test)]
@@ -314,13 +322,21 @@ mod tests {
                 rgba.put_pixel(x + 2, y, image::Rgba([0, 255, 0, 0]));
             }
         }
-        let (image, mask) = composite_downscaled(&rgba, 2, [1.0, 1.0, 1.0]);
+        let (image, mask, matte) = composite_downscaled(&rgba, 2, [1.0, 1.0, 1.0]);
         assert_eq!(image.dimensions(), (2, 1));
         assert_eq!(image.get_pixel(0, 0).0, [255, 0, 0]);
         assert_eq!(image.get_pixel(1, 0).0, [255, 255, 255]);
         assert_eq!(mask, vec![true, false]);
-        let (black, _) = composite_downscaled(&rgba, 1, [0.0; 3]);
+        assert_eq!(matte.alpha, vec![255, 0]);
+        assert_eq!(matte.background, [1.0; 3]);
+        let (black, _, _) = composite_downscaled(&rgba, 1, [0.0; 3]);
         assert_eq!(black.get_pixel(3, 1).0, [0, 0, 0]);
+        // A half-covered block: alpha 0.5 in the matte, the mask says background.
+        rgba.put_pixel(0, 0, image::Rgba([255, 0, 0, 0]));
+        rgba.put_pixel(1, 0, image::Rgba([255, 0, 0, 0]));
+        let (_, mask, matte) = composite_downscaled(&rgba, 2, [1.0; 3]);
+        assert_eq!(mask, vec![false, false]);
+        assert_eq!(matte.alpha, vec![128, 0]);
     }
 
     #[test]

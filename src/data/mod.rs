@@ -42,6 +42,46 @@ pub struct View {
     /// Foreground segmentation (true = foreground), where the dataset ships one; used by
     /// the visual-hull initialiser.
     pub foreground: Option<Vec<bool>>,
+    /// The image's alpha and the colour it was composited over, where the dataset ships
+    /// RGBA images (D-NeRF, Blender-style nerfstudio scenes): lets training recomposite the
+    /// truth over another background (`train.random_background`).
+    pub matte: Option<Matte>,
+}
+
+/// Coverage of an image composited over a uniform colour: `alpha` per pixel (0–255,
+/// row-major, the image's size) and the `background` colour the image was blended over.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Matte {
+    /// Straight alpha of each pixel, 0 (background only) to 255 (opaque).
+    pub alpha: Vec<u8>,
+    /// The colour the 8-bit image was composited over.
+    pub background: [f32; 3],
+}
+
+impl Matte {
+    /// Moves `image` (the view's image over [`Matte::background`]) onto `over`: each pixel
+    /// gains (over − background)·(1 − alpha).
+    pub fn recomposite(&self, image: &mut Image, over: [f32; 3]) {
+        debug_assert_eq!(image.data.len(), self.alpha.len());
+        let shift = std::array::from_fn::<f32, 3, _>(|c| over[c] - self.background[c]);
+        for (pixel, &alpha) in image.data.iter_mut().zip(&self.alpha) {
+            let uncovered = 1.0 - f32::from(alpha) / 255.0;
+            for c in 0..3 {
+                pixel[c] += shift[c] * uncovered;
+            }
+        }
+    }
+
+    /// The matte of the view box-filtered by `factor` (the image is `width × height`), as
+    /// [`crate::io::image::box_downscale`] filters the image.
+    pub fn downscaled(&self, width: u32, height: u32, factor: u32) -> Matte {
+        let alpha = image::GrayImage::from_raw(width, height, self.alpha.clone())
+            .expect("a matte has its view's size");
+        Matte {
+            alpha: crate::io::image::box_downscale(&alpha, factor).into_raw(),
+            background: self.background,
+        }
+    }
 }
 
 impl View {
@@ -98,6 +138,7 @@ impl Dataset {
                 image: rgb.clone(),
                 dynamic_mask: None,
                 foreground: None,
+                matte: None,
             })
             .collect();
         Self {
@@ -178,6 +219,7 @@ impl Dataset {
                 image: image.into(),
                 dynamic_mask: None,
                 foreground: None,
+                matte: None,
             });
         if held_out {
             self.test.extend(views);
@@ -216,6 +258,10 @@ impl Dataset {
                     }),
                     dynamic_mask: mask(&view.dynamic_mask),
                     foreground: mask(&view.foreground),
+                    matte: view
+                        .matte
+                        .as_ref()
+                        .map(|m| m.downscaled(width, height, factor)),
                 }
             })
             .collect();
@@ -262,7 +308,7 @@ impl Dataset {
             .find(|v| v.camera == camera && v.frame == frame)
     }
 
-    /// Bytes of image and mask data the views hold themselves (streamed images count in
+    /// Bytes of image, mask and matte data the views hold themselves (streamed images count in
     /// their cache instead: see [`Dataset::cache`]).
     pub fn memory_bytes(&self) -> usize {
         self.train
@@ -272,6 +318,7 @@ impl Dataset {
                 v.image.resident_bytes()
                     + v.dynamic_mask.as_ref().map_or(0, Vec::len)
                     + v.foreground.as_ref().map_or(0, Vec::len)
+                    + v.matte.as_ref().map_or(0, |m| m.alpha.len())
             })
             .sum()
     }
@@ -354,4 +401,50 @@ fn distinct_cameras(views: &[View]) -> Vec<usize> {
     cameras.sort_unstable();
     cameras.dedup();
     cameras
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Recompositing moves uncovered pixels to the new colour (to 1e-6), leaves covered ones
+    /// exactly as they are and blends a half-covered one halfway: the image a renderer would draw
+    /// over the new colour.
+    #[test]
+    fn recomposite_replaces_the_background_by_coverage() {
+        let white = [1.0; 3];
+        let red = [0.9, 0.1, 0.2];
+        let over = [0.2, 0.4, 0.6];
+        let half = 128.0 / 255.0;
+        let blend = |back: [f32; 3]| std::array::from_fn(|c| half * red[c] + (1.0 - half) * back[c]);
+        let mut image = Image {
+            width: 3,
+            height: 1,
+            data: vec![white, red, blend(white)],
+        };
+        let matte = Matte {
+            alpha: vec![0, 255, 128],
+            background: white,
+        };
+        matte.recomposite(&mut image, over);
+        assert_eq!(image.data[1], red);
+        let expected: [f32; 3] = blend(over);
+        for c in 0..3 {
+            assert!((image.data[0][c] - over[c]).abs() < 1e-6, "uncovered, channel {c}");
+            assert!((image.data[2][c] - expected[c]).abs() < 1e-6, "half, channel {c}");
+        }
+    }
+
+    /// The downscaled matte is the block mean of the alpha, rounded, like the image's box
+    /// filter: a 4×2 matte at factor 2 gives 2×1.
+    #[test]
+    fn downscaled_matte_averages_blocks() {
+        let matte = Matte {
+            alpha: vec![0, 255, 255, 255, 0, 0, 255, 255],
+            background: [0.0; 3],
+        };
+        let half = matte.downscaled(4, 2, 2);
+        assert_eq!(half.alpha, vec![64, 255]);
+        assert_eq!(half.background, [0.0; 3]);
+    }
 }

@@ -38,7 +38,7 @@ use super::dnerf::{blender_to_opencv_w2c, composite_downscaled, image_path};
 use super::error::{check_downscale, open_image, read_text};
 use super::panoptic::parse_rigid;
 use super::settings::{self, check_background, check_downscale_factor};
-use super::{Camera, DataError, Dataset, View};
+use super::{Camera, DataError, Dataset, Matte, View};
 use crate::io::image::box_downscale;
 use crate::scene::FieldError;
 
@@ -266,7 +266,7 @@ pub fn load(source: &NerfstudioSource) -> Result<Dataset, DataError> {
     let loaded: Vec<(bool, Camera, View)> = jobs
         .par_iter()
         .map(|&(is_train, frame)| {
-            let (camera, image, foreground) = read_view(frame, source)?;
+            let (camera, image, foreground, matte) = read_view(frame, source)?;
             let time = frame.time.unwrap_or(0.0);
             let view = View {
                 camera: 0,
@@ -275,6 +275,7 @@ pub fn load(source: &NerfstudioSource) -> Result<Dataset, DataError> {
                 image: image.into(),
                 dynamic_mask: None,
                 foreground,
+                matte,
             };
             Ok((is_train, camera, view))
         })
@@ -328,7 +329,7 @@ fn camera_key(camera: &Camera) -> Vec<u32> {
 fn read_view(
     frame: &Frame,
     source: &NerfstudioSource,
-) -> Result<(Camera, image::RgbImage, Option<Vec<bool>>), DataError> {
+) -> Result<(Camera, image::RgbImage, Option<Vec<bool>>, Option<Matte>), DataError> {
     let path = &frame.image_path;
     let decoded = open_image(path)?;
     let found = (decoded.width(), decoded.height());
@@ -345,14 +346,15 @@ fn read_view(
         });
     }
     check_downscale(path, found, source.downscale)?;
-    let (image, foreground) = if decoded.color().has_alpha() {
-        let (image, mask) =
+    let (image, foreground, matte) = if decoded.color().has_alpha() {
+        let (image, mask, matte) =
             composite_downscaled(&decoded.into_rgba8(), source.downscale, source.background);
-        // An opaque alpha channel says nothing about what is foreground.
+        // An opaque alpha channel says nothing about what is foreground or background.
         let mask = (!mask.iter().all(|&m| m)).then_some(mask);
-        (image, mask)
+        let matte = (!matte.alpha.iter().all(|&a| a == 255)).then_some(matte);
+        (image, mask, matte)
     } else {
-        (box_downscale(&decoded.into_rgb8(), source.downscale), None)
+        (box_downscale(&decoded.into_rgb8(), source.downscale), None, None)
     };
     let (width, height) = found;
     let fx = match intrinsics.fx {
@@ -369,7 +371,7 @@ fn read_view(
         world_to_camera: frame.world_to_camera.as_mat4(),
     }
     .downscaled(source.downscale);
-    Ok((camera, image, foreground))
+    Ok((camera, image, foreground, matte))
 }
 
 /// A JSON error naming the file, line and column, with a hint where the value is NaN or

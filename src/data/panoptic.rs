@@ -267,6 +267,7 @@ pub fn load(source: &PanopticSource) -> Result<Dataset, DataError> {
                     image,
                     dynamic_mask: None,
                     foreground,
+                    matte: None,
                 },
             ))
         })

@@ -314,6 +314,7 @@ mod tests {
             image: image.to_rgb8().into(),
             dynamic_mask: None,
             foreground: None,
+            matte: None,
         }
     }
 

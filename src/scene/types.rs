@@ -551,6 +551,13 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Background colour the renders are composited over.
     pub background: [f32; 3],
+    /// Train every iteration over a new random uniform background colour, with the truth
+    /// recomposited over the same colour from the view's alpha matte (datasets of RGBA images:
+    /// D-NeRF, Blender-style nerfstudio scenes; views without a matte keep `background`).
+    /// Over a fixed background, Gaussians of its colour are invisible wherever they cover only
+    /// background in the training views, and they show as floaters in held-out views; over
+    /// random colours they cost loss and fade. Evaluation and renders use `background`.
+    pub random_background: bool,
     /// Weight of D-SSIM in the loss (0.2).
     pub lambda_dssim: f32,
     /// Gaussians closer to the camera than this (camera-space depth, scene units) are not
@@ -618,6 +625,7 @@ impl Default for TrainConfig {
             iterations: 40_000,
             seed: 0,
             background: [0.0; 3],
+            random_background: false,
             lambda_dssim: 0.2,
             near_plane: 0.01,
             sh_increase_interval: 1000,

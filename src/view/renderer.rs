@@ -17,7 +17,7 @@ use crate::io::camera_path::CameraSpec;
 use crate::io::image::Image;
 use crate::io::model::Model;
 use crate::model::project::MIN_OPACITY;
-use crate::resources::{SplatBuffers, TrainState, ViewSample};
+use crate::resources::{Settings, SplatBuffers, TrainState, ViewSample};
 use crate::scene::SceneConfig;
 use crate::systems::render_schedule;
 use crate::train::insert_render_resources;
@@ -217,11 +217,13 @@ impl Renderer {
         let start = Instant::now();
         let last = self.frame_count.saturating_sub(1);
         let frame = ((time * last as f32).round() as usize).min(last);
+        let background = self.world.resource::<Settings>().train.background;
         *self.world.resource_mut::<ViewSample>() = ViewSample {
             camera: *camera,
             view: None,
             frame,
             time,
+            background,
         };
         self.schedule.run(&mut self.world);
         let render_seconds = start.elapsed().as_secs_f64();

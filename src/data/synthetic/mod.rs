@@ -385,6 +385,7 @@ impl SyntheticScene {
                 image: image.to_rgb8().into(),
                 dynamic_mask: Some(mask),
                 foreground: self.foreground_masks.then_some(objects),
+                matte: None,
             };
             if self.held_out.contains(&camera) {
                 dataset.test.push(view);

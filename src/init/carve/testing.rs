@@ -64,6 +64,7 @@ pub(super) fn sphere_scene() -> SphereScene {
                 image: image.into(),
                 dynamic_mask: None,
                 foreground: Some(mask),
+                matte: None,
             }
         })
         .collect();
