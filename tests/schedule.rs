@@ -591,5 +591,8 @@ fn random_background_fades_gaussians_of_the_background_colour() {
     let (start, fixed) = mean_opacity_after(false);
     let (_, random) = mean_opacity_after(true);
     assert!(fixed > 0.5 * start, "fixed background: {start} → {fixed}");
-    assert!(random < 0.5 * fixed, "random {random} against fixed {fixed}");
+    assert!(
+        random < 0.5 * fixed,
+        "random {random} against fixed {fixed}"
+    );
 }

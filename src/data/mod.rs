@@ -416,7 +416,8 @@ mod tests {
         let red = [0.9, 0.1, 0.2];
         let over = [0.2, 0.4, 0.6];
         let half = 128.0 / 255.0;
-        let blend = |back: [f32; 3]| std::array::from_fn(|c| half * red[c] + (1.0 - half) * back[c]);
+        let blend =
+            |back: [f32; 3]| std::array::from_fn(|c| half * red[c] + (1.0 - half) * back[c]);
         let mut image = Image {
             width: 3,
             height: 1,
@@ -430,8 +431,14 @@ mod tests {
         assert_eq!(image.data[1], red);
         let expected: [f32; 3] = blend(over);
         for c in 0..3 {
-            assert!((image.data[0][c] - over[c]).abs() < 1e-6, "uncovered, channel {c}");
-            assert!((image.data[2][c] - expected[c]).abs() < 1e-6, "half, channel {c}");
+            assert!(
+                (image.data[0][c] - over[c]).abs() < 1e-6,
+                "uncovered, channel {c}"
+            );
+            assert!(
+                (image.data[2][c] - expected[c]).abs() < 1e-6,
+                "half, channel {c}"
+            );
         }
     }
 

@@ -354,7 +354,11 @@ fn read_view(
         let matte = (!matte.alpha.iter().all(|&a| a == 255)).then_some(matte);
         (image, mask, matte)
     } else {
-        (box_downscale(&decoded.into_rgb8(), source.downscale), None, None)
+        (
+            box_downscale(&decoded.into_rgb8(), source.downscale),
+            None,
+            None,
+        )
     };
     let (width, height) = found;
     let fx = match intrinsics.fx {
