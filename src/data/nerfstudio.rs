@@ -325,11 +325,12 @@ fn camera_key(camera: &Camera) -> Vec<u32> {
     key
 }
 
+/// One frame's camera, its image and, for RGBA images with transparency, the alpha > 0.5
+/// foreground mask and the matte.
+type ViewParts = (Camera, image::RgbImage, Option<Vec<bool>>, Option<Matte>);
+
 /// Reads one frame's image and makes its camera, both downscaled.
-fn read_view(
-    frame: &Frame,
-    source: &NerfstudioSource,
-) -> Result<(Camera, image::RgbImage, Option<Vec<bool>>, Option<Matte>), DataError> {
+fn read_view(frame: &Frame, source: &NerfstudioSource) -> Result<ViewParts, DataError> {
     let path = &frame.image_path;
     let decoded = open_image(path)?;
     let found = (decoded.width(), decoded.height());
