@@ -42,7 +42,6 @@ fn world_on(backend: BackendKind, config: &SceneConfig, dataset: &Arc<Dataset>) 
         view: Some(5),
         frame: view.frame,
         time: view.time,
-
         ..*world.resource::<ViewSample>()
     };
     world

@@ -58,7 +58,6 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
         view: Some(7),
         frame: 7,
         time: 0.7,
-
         ..*world.resource::<ViewSample>()
     };
 

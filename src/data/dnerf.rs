@@ -144,7 +144,8 @@ pub fn load(source: &DNerfSource) -> Result<Dataset, DataError> {
                 image: image.into(),
                 dynamic_mask: None,
                 foreground: Some(foreground),
-                matte: Some(matte),
+                // Only training recomposites the truth.
+                matte: is_train.then_some(matte),
             };
             Ok((is_train, camera, view))
         })

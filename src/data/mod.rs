@@ -42,9 +42,9 @@ pub struct View {
     /// Foreground segmentation (true = foreground), where the dataset ships one; used by
     /// the visual-hull initialiser.
     pub foreground: Option<Vec<bool>>,
-    /// The image's alpha and the colour it was composited over, where the dataset ships
-    /// RGBA images (D-NeRF, Blender-style nerfstudio scenes): lets training recomposite the
-    /// truth over another background (`train.random_background`).
+    /// The image's alpha and the colour it was composited over, for training views of
+    /// datasets of RGBA images (D-NeRF, Blender-style nerfstudio scenes): lets training
+    /// recomposite the truth over another background (`train.random_background`).
     pub matte: Option<Matte>,
 }
 

@@ -275,7 +275,8 @@ pub fn load(source: &NerfstudioSource) -> Result<Dataset, DataError> {
                 image: image.into(),
                 dynamic_mask: None,
                 foreground,
-                matte,
+                // Only training recomposites the truth.
+                matte: matte.filter(|_| is_train),
             };
             Ok((is_train, camera, view))
         })
