@@ -48,6 +48,8 @@ struct StatsParams {
     lambda: f32,
     // The view's normalised time t (for Σw·g·(t − t_i)).
     time: f32,
+    // 1: a Gaussian centred at t_i ≤ 0 (≥ 1) has the whole window on the sequence's side.
+    one_sided_ends: u32,
 }
 
 const LN_5: f32 = 1.609438;
@@ -63,15 +65,25 @@ const EXP_CAP: f32 = 80.0;
 @group(0) @binding(4) var<storage, read> temporal: array<Temporal>;
 @group(0) @binding(5) var<storage, read_write> accum: array<GradAccum>;
 
-// W⁻¹(w) for w ≥ 0 (TimeWarp::inverse).
-fn warp_inverse(w: f32) -> f32 {
+// The fraction of the window on one side (`right`: Δt ≥ 0) of a Gaussian centred at
+// `center` (TimeWarp::window_fraction).
+fn window_fraction(center: f32, right: bool) -> f32 {
+    if params.one_sided_ends == 1u && (center <= 0.0 || center >= 1.0) {
+        return select(0.0, 1.0, right == (center <= 0.0));
+    }
+    return 0.5;
+}
+
+// |W⁻¹| of a warped offset w ≥ 0 on the side of the window holding `fraction` of it
+// (TimeWarp::inverse).
+fn warp_inverse(w: f32, fraction: f32) -> f32 {
     if params.warp == 0u {
         return w;
     }
-    if w <= 0.5 * params.rho {
+    if w <= fraction * params.rho {
         return w / params.s_near;
     }
-    return 0.5 * params.lambda + (w - 0.5 * params.rho) / params.s_far;
+    return fraction * params.lambda + (w - fraction * params.rho) / params.s_far;
 }
 
 // min(w_min · e^raw, 1.1).
@@ -96,8 +108,8 @@ fn lifespan_fraction(t: Temporal) -> f32 {
         a_left = asymmetric_width(t.scale0) * params.asymmetric_k;
         a_right = asymmetric_width(t.scale1) * params.asymmetric_k;
     }
-    let lo = max(t.center - warp_inverse(a_left), 0.0);
-    let hi = min(t.center + warp_inverse(a_right), 1.0);
+    let lo = max(t.center - warp_inverse(a_left, window_fraction(t.center, false)), 0.0);
+    let hi = min(t.center + warp_inverse(a_right, window_fraction(t.center, true)), 1.0);
     return clamp(hi - lo, 0.0, 1.0);
 }
 

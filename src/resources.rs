@@ -52,6 +52,7 @@ impl Settings {
         }
         let warp = if tow.enabled {
             TimeWarp::tow(tow.window_frames, frame_count, tow.rho)
+                .with_one_sided_ends(tow.one_sided_ends)
         } else {
             TimeWarp::Identity
         };

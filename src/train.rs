@@ -182,16 +182,15 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
     let settings = world.resource::<Settings>().clone();
     let dataset = world.resource::<TrainingViews>().0.clone();
     let init = &scene.init;
-    let temporal_raw = |half_frames: f32| {
+    let temporal_raw = |half_frames: f32, center: f32| {
         init_temporal_raw(
             settings.opacity,
             half_frames,
             dataset.frame_count,
             &settings.warp,
+            center,
         )
     };
-    let temporal_scale = temporal_raw(init.lifespan_half_frames);
-    let background_scale = init.background_lifespan_half_frames.map(temporal_raw);
     let file_points = match &init.method {
         InitMethod::PointCloud(path) => Some(read_point_cloud(std::path::Path::new(path))?),
         _ => None,
@@ -199,6 +198,12 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(scene.train.seed ^ 0x5eed);
     let mut spawned = 0;
     for frame in dataset.anchor_frames(init.anchor_spacing) {
+        let center = dataset.frame_time(frame);
+        // Per anchor: a one-sided end window warps the lifespan differently at the ends.
+        let temporal_scale = temporal_raw(init.lifespan_half_frames, center);
+        let background_scale = init
+            .background_lifespan_half_frames
+            .map(|half_frames| temporal_raw(half_frames, center));
         let mut points = match &file_points {
             Some(points) => CarvedPoints::undivided(points.clone()),
             None => anchor_points(&dataset, frame, init, &mut rng)?,
@@ -224,7 +229,7 @@ pub fn spawn_initial_gaussians(world: &mut World, scene: &SceneConfig) -> Result
                 world,
                 scene.model.sh_degree,
                 &points,
-                dataset.frame_time(frame),
+                center,
                 scale,
                 init.opacity,
             );

@@ -193,7 +193,7 @@ pub fn backward_parameters(
                         dtw,
                         d_sigma,
                     );
-                centre_gradient(d_dtw, &warp, warped.dt)
+                centre_gradient(d_dtw, &warp, temporal.center, warped.dt)
             } else {
                 0.0
             };

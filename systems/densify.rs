@@ -253,7 +253,9 @@ pub fn recentred(
     time: f32,
     settings: &Settings,
 ) -> (Position, Temporal, Rotation, Scale) {
-    let dtw = settings.warp.apply(time - parent.temporal.center);
+    let dtw = settings
+        .warp
+        .apply(parent.temporal.center, time - parent.temporal.center);
     let (f, basis) = (parent.fourier, settings.motion_basis());
     let motion = |dtw| fourier_offset(&f.cos, &f.sin, &f.phase, basis, dtw);
     let mean = Vec3::from_array(parent.position.mean) + motion(dtw) - motion(0.0);
@@ -751,7 +753,7 @@ mod tests {
         };
         let basis: MotionBasis = settings.motion_basis();
         let pose = |p: &Position, f: &Fourier, t: &Temporal, r: &Rotation, s: &Scale, at: f32| {
-            let dtw = settings.warp.apply(at - t.center);
+            let dtw = settings.warp.apply(t.center, at - t.center);
             let mean =
                 Vec3::from_array(p.mean) + fourier_offset(&f.cos, &f.sin, &f.phase, basis, dtw);
             (

@@ -17,7 +17,7 @@ pub fn time_warp(
         let dt = t - temporal.center;
         *warped = WarpedTime {
             dt,
-            dtw: warp.apply(dt),
+            dtw: warp.apply(temporal.center, dt),
         };
     });
 }

@@ -208,8 +208,8 @@ fn random_temporal(rng: &mut ChaCha8Rng, n: usize, model: TemporalOpacity) -> Ve
 }
 
 /// `accumulate_stats` on the GPU equals the CPU system over three views at random times, for
-/// VAD on and off, minimum opacity on and off, both temporal opacity models and both time
-/// warps: counts and radii exactly, the weighted gradient and weight sums within 1e-6
+/// VAD on and off, minimum opacity on and off, both temporal opacity models and the three time
+/// warps (identity, TOW with centred and with one-sided end windows): counts and radii exactly, the weighted gradient and weight sums within 1e-6
 /// relative, the gradient-weighted time offset within 1e-6 of Σw·g, the lifespan sums
 /// (three lifespans in [0, 1]) within 1e-5 absolute: Vulkan lets `exp` err by 3 + 2|x| ulp,
 /// about 2e-6 relative for the raw temporal scales of training, and the time warp's far slope
@@ -228,7 +228,11 @@ fn gpu_stats_equal_cpu_accumulate_stats() {
     for vad in [false, true] {
         for min_opacity in [None, Some(0.3)] {
             for model in [TemporalOpacity::Rbf, TemporalOpacity::asymmetric(300)] {
-                for warp in [TimeWarp::Identity, TimeWarp::tow(50.0, 300, 0.75)] {
+                for warp in [
+                    TimeWarp::Identity,
+                    TimeWarp::tow(50.0, 300, 0.75),
+                    TimeWarp::tow(50.0, 300, 0.75).with_one_sided_ends(true),
+                ] {
                     // With VAD, dispatches as 2D grids (16 workgroups in rows of 3).
                     tadgs::gpu::set_max_dispatch_width(if vad { 3 } else { 65_535 });
                     let mut settings = settings();

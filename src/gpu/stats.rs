@@ -64,7 +64,8 @@ struct StatsParams {
     s_far: f32,
     lambda: f32,
     time: f32,
-    _pad: [u32; 3],
+    one_sided_ends: u32,
+    _pad: [u32; 2],
 }
 
 impl StatsParams {
@@ -73,9 +74,13 @@ impl StatsParams {
             TemporalOpacity::Rbf => (0, 0.0),
             TemporalOpacity::Asymmetric { w_min } => (1, w_min),
         };
-        let (warp, lambda, rho) = match config.warp {
-            TimeWarp::Identity => (0, 0.0, 0.0),
-            TimeWarp::Tow { lambda, rho } => (1, lambda, rho),
+        let (warp, lambda, rho, one_sided_ends) = match config.warp {
+            TimeWarp::Identity => (0, 0.0, 0.0, false),
+            TimeWarp::Tow {
+                lambda,
+                rho,
+                one_sided_ends,
+            } => (1, lambda, rho, one_sided_ends),
         };
         Self {
             count,
@@ -96,7 +101,8 @@ impl StatsParams {
             },
             lambda,
             time: config.time,
-            _pad: [0; 3],
+            one_sided_ends: u32::from(one_sided_ends),
+            _pad: [0; 2],
         }
     }
 }

@@ -391,7 +391,9 @@ pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32)
         .iter()
         .enumerate()
         .filter_map(|(index, g)| {
-            let dtw = settings.warp.apply(time - g.temporal.center);
+            let dtw = settings
+                .warp
+                .apply(g.temporal.center, time - g.temporal.center);
             let window = model
                 .time_windows
                 .as_ref()

@@ -317,21 +317,22 @@ pub fn polynomial_dtw_backward(d_c0: [f32; 4], c1: [f32; 4], d_d0: [f32; 3], d1:
     dot4(d_c0, c1) + Vec3::from(d_d0).dot(Vec3::from(d1))
 }
 
-/// dL/dt_i of a temporal centre, given dL/d(dtw) and the unwarped offset dt = t − t_i:
-/// dtw = W(t − t_i), so d dtw/d t_i = −W'(dt).
+/// dL/dt_i of a temporal centre `center`, given dL/d(dtw) and the unwarped offset
+/// dt = t − t_i: dtw = W(t − t_i), so d dtw/d t_i = −W'(dt) (a one-sided end window, which
+/// holds only at t_i = 0 or 1 exactly, is taken as fixed).
 #[inline]
-pub fn centre_gradient(d_dtw: f32, warp: &TimeWarp, dt: f32) -> f32 {
-    -warp.slope(dt) * d_dtw
+pub fn centre_gradient(d_dtw: f32, warp: &TimeWarp, center: f32, dt: f32) -> f32 {
+    -warp.slope(center, dt) * d_dtw
 }
 
 /// Normalised lifespan ψ̄ ∈ [0, 1] used by TAT.
 ///
 /// Definition: the Lebesgue measure of {t ∈ [0, 1] : σ(t)/σ^s > 0.2}, where σ(t) is evaluated
-/// at dtw = `warp.apply(t − center)`. Since the temporal factor is a decreasing function of
+/// at dtw = `warp.apply(center, t − center)`. Since the temporal factor is a decreasing function of
 /// |dtw| on each side, the set is the interval of t with W(t − center) ∈ (−a_left, a_right):
 /// a = sqrt(ln 5 / ψ) on both sides for [`TemporalOpacity::Rbf`] and a = w·sqrt(ln 5) per
-/// side for [`TemporalOpacity::Asymmetric`]. Mapping back, l = W⁻¹(a_left), r = W⁻¹(a_right),
-/// and ψ̄ = length([center − l, center + r] ∩ [0, 1]).
+/// side for [`TemporalOpacity::Asymmetric`]. Mapping back, l = −W⁻¹(−a_left),
+/// r = W⁻¹(a_right), and ψ̄ = length([center − l, center + r] ∩ [0, 1]).
 pub fn lifespan_fraction(
     model: TemporalOpacity,
     temporal_raw: [f32; 2],
@@ -351,16 +352,17 @@ pub fn lifespan_fraction(
             (left * k, right * k)
         }
     };
-    let lo = (center - warp.inverse(a_left)).max(0.0);
-    let hi = (center + warp.inverse(a_right)).min(1.0);
+    let lo = (center + warp.inverse(center, -a_left)).max(0.0);
+    let hi = (center + warp.inverse(center, a_right)).min(1.0);
     (hi - lo).clamp(0.0, 1.0)
 }
 
-/// Initial raw temporal values such that σ(t)/σ^s = 0.2 exactly at
-/// t − t_i = ±half_width_frames/(T − 1) (in warped time).
+/// Initial raw temporal values for a Gaussian centred at `center` such that σ(t)/σ^s = 0.2
+/// exactly at t − t_i = ±half_width_frames/(T − 1) (in warped time).
 ///
-/// Rbf: ψ = ln 5 / W(h)², raw = [ln ψ, 0] (`temporal_raw[1]` is unused).
-/// Asymmetric: both sides s = ln(W(h) / (sqrt(ln 5)·w_min)); if that width exceeds the
+/// Rbf: ψ = ln 5 / W(h)², raw = [ln ψ, 0] (`temporal_raw[1]` is unused); with a one-sided
+/// end window, where W(h) ≠ −W(−h), the side inside the sequence (the larger |W|) sets ψ.
+/// Asymmetric: each side s = ln(|W(±h)| / (sqrt(ln 5)·w_min)); if that width exceeds the
 /// 1.1 cap, s is set (a hair below) where the cap starts, so the width is the cap but the
 /// gradient is not cut off. `half_width_frames` should be positive.
 pub fn init_temporal_raw(
@@ -368,21 +370,31 @@ pub fn init_temporal_raw(
     half_width_frames: f32,
     frame_count: usize,
     warp: &TimeWarp,
+    center: f32,
 ) -> [f32; 2] {
     let h = half_width_frames / frame_intervals(frame_count);
     // A zero half-width would give an infinite ψ; keep it finite.
-    let wh = warp.apply(h).max(1e-6);
+    let (left, right) = (
+        (-warp.apply(center, -h)).max(1e-6),
+        warp.apply(center, h).max(1e-6),
+    );
     match model {
-        TemporalOpacity::Rbf => [(LN_5 / (wh * wh)).ln(), 0.0],
+        TemporalOpacity::Rbf => {
+            let wh = left.max(right);
+            [(LN_5 / (wh * wh)).ln(), 0.0]
+        }
         TemporalOpacity::Asymmetric { w_min } => {
-            let w = wh / LN_5.sqrt();
-            let s = if w < ASYMMETRIC_MAX_WIDTH {
-                (w / w_min).ln()
-            } else {
-                // A few ulps below ln(1.1/w_min) so that w_min·e^s does not round above the cap.
-                (ASYMMETRIC_MAX_WIDTH / w_min).ln() - 1e-5
+            let raw = |wh: f32| {
+                let w = wh / LN_5.sqrt();
+                if w < ASYMMETRIC_MAX_WIDTH {
+                    (w / w_min).ln()
+                } else {
+                    // A few ulps below ln(1.1/w_min) so that w_min·e^s does not round above
+                    // the cap.
+                    (ASYMMETRIC_MAX_WIDTH / w_min).ln() - 1e-5
+                }
             };
-            [s, s]
+            [raw(left), raw(right)]
         }
     }
 }
@@ -819,14 +831,14 @@ mod tests {
                 continue;
             }
             let loss = |c: f32| {
-                let dtw = warp.apply(t - c);
+                let dtw = warp.apply(c, t - c);
                 dot4(d_q, rotation_at(c0, c1, dtw)) + d_s.dot(scale_at(d0, d1, dtw))
             };
-            let dtw = warp.apply(t - centre);
+            let dtw = warp.apply(centre, t - centre);
             let (d_c0, _) = rotation_at_backward(c0, c1, dtw, d_q);
             let (d_d0, _) = scale_at_backward(d0, d1, dtw, d_s);
             let d_dtw = polynomial_dtw_backward(d_c0, c1, d_d0, d1);
-            let g = centre_gradient(d_dtw, &warp, t - centre);
+            let g = centre_gradient(d_dtw, &warp, centre, t - centre);
             assert_grad("centre", g, central(loss, centre, 1e-3));
         }
     }
@@ -842,7 +854,8 @@ mod tests {
         let count = (0..n)
             .filter(|&i| {
                 let t = (i as f32 + 0.5) / n as f32;
-                temporal_opacity(model, 10.0, raw, warp.apply(t - center)) / sigmoid(10.0) > 0.2
+                temporal_opacity(model, 10.0, raw, warp.apply(center, t - center)) / sigmoid(10.0)
+                    > 0.2
             })
             .count();
         count as f32 / n as f32
@@ -869,6 +882,7 @@ mod tests {
         let warp = TimeWarp::Tow {
             lambda: 0.2,
             rho: 0.5,
+            one_sided_ends: false,
         };
         let raw = [(LN_5 / 0.16).ln(), 0.0];
         assert!((lifespan_fraction(rbf, raw, 0.5, &warp) - 0.68).abs() < 1e-5);
@@ -891,18 +905,25 @@ mod tests {
             TimeWarp::Tow {
                 lambda: 0.4,
                 rho: 0.3,
+                one_sided_ends: false,
             },
+            TimeWarp::tow(50.0, 300, 0.75).with_one_sided_ends(true),
         ];
         let models = [TemporalOpacity::Rbf, TemporalOpacity::asymmetric(300)];
         let mut rng = rng();
         for warp in warps {
             for model in models {
-                for _ in 0..4 {
+                for i in 0..6 {
                     let raw = match model {
                         TemporalOpacity::Rbf => [rng.random_range(0.0..8.0), 0.0],
                         _ => [rng.random_range(-1.0..3.0), rng.random_range(-1.0..3.0)],
                     };
-                    let center = rng.random_range(0.0..1.0);
+                    // The sequence's ends too, where one-sided windows apply.
+                    let center = match i {
+                        0 => 0.0,
+                        1 => 1.0,
+                        _ => rng.random_range(0.0..1.0),
+                    };
                     let closed = lifespan_fraction(model, raw, center, &warp);
                     let sampled = lifespan_by_sampling(model, raw, center, &warp);
                     assert!(
@@ -921,30 +942,38 @@ mod tests {
             TimeWarp::Identity,
             TimeWarp::tow(50.0, frames, 0.75),
             TimeWarp::tow(50.0, frames, 0.7),
+            TimeWarp::tow(50.0, frames, 0.75).with_one_sided_ends(true),
         ];
         let models = [TemporalOpacity::Rbf, TemporalOpacity::asymmetric(frames)];
         for warp in warps {
             for model in models {
                 for half in [5.0, 25.0, 60.0] {
-                    let raw = init_temporal_raw(model, half, frames, &warp);
                     let h = half / (frames - 1) as f32;
                     let sig = sigmoid(0.3);
-                    for dt in [-h, h] {
-                        let v = temporal_opacity(model, 0.3, raw, warp.apply(dt));
-                        assert!(
-                            (v - 0.2 * sig).abs() < 1e-5 * sig,
-                            "{model:?} {warp:?} {half}: {}",
-                            v / sig
-                        );
+                    // The middle, where both sides are inside the sequence, and the ends,
+                    // where only the side towards the sequence is.
+                    for (center, offsets) in [(0.5, vec![-h, h]), (0.0, vec![h]), (1.0, vec![-h])] {
+                        let raw = init_temporal_raw(model, half, frames, &warp, center);
+                        for dt in offsets {
+                            let v = temporal_opacity(model, 0.3, raw, warp.apply(center, dt));
+                            assert!(
+                                (v - 0.2 * sig).abs() < 1e-5 * sig,
+                                "{model:?} {warp:?} {half} at {center}: {}",
+                                v / sig
+                            );
+                        }
+                        // Consistent with the lifespan definition: alive for 2h around the
+                        // middle, h from an end.
+                        let alive = if center == 0.5 { 2.0 * h } else { h };
+                        let lifespan = lifespan_fraction(model, raw, center, &warp);
+                        assert!((lifespan - alive).abs() < 1e-4, "{lifespan} vs {alive}");
                     }
-                    // Consistent with the lifespan definition: alive for 2h around the middle.
-                    assert!((lifespan_fraction(model, raw, 0.5, &warp) - 2.0 * h).abs() < 1e-4);
                 }
             }
         }
         // Asymmetric target width above the cap: width is the cap, gradient still flows.
         let model = TemporalOpacity::asymmetric(frames);
-        let raw = init_temporal_raw(model, 700.0, frames, &TimeWarp::Identity);
+        let raw = init_temporal_raw(model, 700.0, frames, &TimeWarp::Identity, 0.5);
         let TemporalOpacity::Asymmetric { w_min } = model else {
             unreachable!()
         };

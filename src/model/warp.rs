@@ -1,7 +1,7 @@
 //! Temporal Offset Warping (TOW, SPEC §3).
 //!
 //! The offset Δt = t − t_i between the rendered time and a Gaussian's temporal centre is
-//! remapped by a piecewise-linear, odd, monotone function W before it enters the deformation:
+//! remapped by a piecewise-linear, monotone function W before it enters the deformation:
 //! a window of width λ around the centre is stretched (slope s_near = ρ/λ) and the rest is
 //! compressed (slope s_far = (1 − ρ)/(1 − λ)), with the far branch continued from the window
 //! edge (the paper writes it as s_far·Δt, which jumps at |Δt| = λ/2).
@@ -11,6 +11,12 @@
 //! its ends lie outside the window; in particular W(±½) = ±½. A fraction ρ of that warped
 //! length belongs to the window. W(±1) is *not* ±1 (it is ρ/2 + s_far·(1 − λ/2), 0.65 for
 //! λ = 50/300, ρ = 0.75): slopes giving W(±1) = ±1 would have to differ from the paper's.
+//!
+//! The paper centres the window on every Gaussian, so for one centred at the sequence's first
+//! or last instant half of it lies outside the sequence. The authors' code gives such a
+//! Gaussian a one-sided window of the whole λ inside the sequence instead
+//! (`model.tow.one_sided_ends`): W is then odd only about interior centres, and the sequence
+//! keeps its length 1 for the end centres too (W(1) = 1 at t_i = 0).
 
 /// The temporal warp W applied to the offset Δt = t − t_i.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,6 +30,9 @@ pub enum TimeWarp {
         lambda: f32,
         /// Fraction ρ of the warped span given to the near window.
         rho: f32,
+        /// Whether a Gaussian centred at t_i ≤ 0 (t_i ≥ 1) gets the window 0 ≤ Δt ≤ λ
+        /// (−λ ≤ Δt ≤ 0) instead of |Δt| ≤ λ/2 (authors' implementation).
+        one_sided_ends: bool,
     },
 }
 
@@ -33,8 +42,9 @@ const RHO_RANGE: (f32, f32) = (1e-3, 1.0 - 1e-3);
 
 impl TimeWarp {
     /// The TOW warp for a window of `window_frames` frames in a `frame_count`-frame sequence:
-    /// λ = window_frames / frame_count. Falls back to [`TimeWarp::Identity`] when λ is not in
-    /// (0, 1) (the window covers the whole sequence). ρ is clamped into [1e-3, 1 − 1e-3].
+    /// λ = window_frames / frame_count, centred windows everywhere (the paper). Falls back to
+    /// [`TimeWarp::Identity`] when λ is not in (0, 1) (the window covers the whole sequence).
+    /// ρ is clamped into [1e-3, 1 − 1e-3].
     pub fn tow(window_frames: f32, frame_count: usize, rho: f32) -> Self {
         let lambda = window_frames / frame_count as f32;
         if !(lambda > 0.0 && lambda < 1.0) {
@@ -45,7 +55,24 @@ impl TimeWarp {
         } else {
             rho.clamp(RHO_RANGE.0, RHO_RANGE.1)
         };
-        Self::Tow { lambda, rho }
+        Self::Tow {
+            lambda,
+            rho,
+            one_sided_ends: false,
+        }
+    }
+
+    /// The same warp with one-sided windows for Gaussians centred at the sequence's ends
+    /// (`on`) or centred windows everywhere; the identity stays the identity.
+    pub fn with_one_sided_ends(self, on: bool) -> Self {
+        match self {
+            Self::Identity => Self::Identity,
+            Self::Tow { lambda, rho, .. } => Self::Tow {
+                lambda,
+                rho,
+                one_sided_ends: on,
+            },
+        }
     }
 
     /// Slopes (s_near, s_far) of the warp; (1, 1) for the identity.
@@ -53,37 +80,61 @@ impl TimeWarp {
     fn slopes(&self) -> (f32, f32) {
         match *self {
             Self::Identity => (1.0, 1.0),
-            Self::Tow { lambda, rho } => (rho / lambda, (1.0 - rho) / (1.0 - lambda)),
+            Self::Tow { lambda, rho, .. } => (rho / lambda, (1.0 - rho) / (1.0 - lambda)),
         }
     }
 
-    /// W(Δt): s_near·Δt for |Δt| ≤ λ/2, else sign(Δt)·(s_near·λ/2 + s_far·(|Δt| − λ/2)).
+    /// The fraction of the window on the side of Δt (the sign of `offset`, raw or warped) for
+    /// a Gaussian centred at `center`: ½, or with one-sided ends 1 on the sequence's side of
+    /// an end centre and 0 on the other.
     #[inline]
-    pub fn apply(&self, dt: f32) -> f32 {
+    fn window_fraction(&self, center: f32, offset: f32) -> f32 {
+        match *self {
+            Self::Tow {
+                one_sided_ends: true,
+                ..
+            } if center <= 0.0 || center >= 1.0 => {
+                let towards_sequence = if center <= 0.0 {
+                    offset >= 0.0
+                } else {
+                    offset <= 0.0
+                };
+                if towards_sequence { 1.0 } else { 0.0 }
+            }
+            _ => 0.5,
+        }
+    }
+
+    /// W(Δt) for a Gaussian centred at `center`: s_near·Δt inside the window (|Δt| ≤ λ/2, or
+    /// the one-sided end window), else sign(Δt)·(s_near·e + s_far·(|Δt| − e)) with e the
+    /// window's extent on that side.
+    #[inline]
+    pub fn apply(&self, center: f32, dt: f32) -> f32 {
         match *self {
             Self::Identity => dt,
-            Self::Tow { lambda, rho } => {
+            Self::Tow { lambda, rho, .. } => {
                 let (s_near, s_far) = self.slopes();
-                let half = 0.5 * lambda;
+                let fraction = self.window_fraction(center, dt);
                 let a = dt.abs();
-                if a <= half {
+                if a <= fraction * lambda {
                     s_near * dt
                 } else {
-                    // s_near·λ/2 = ρ/2.
-                    (0.5 * rho + s_far * (a - half)).copysign(dt)
+                    // s_near·(fraction·λ) = fraction·ρ.
+                    (fraction * rho + s_far * (a - fraction * lambda)).copysign(dt)
                 }
             }
         }
     }
 
-    /// dW/dΔt: s_near inside the window (|Δt| ≤ λ/2), s_far outside; 1 for the identity.
+    /// dW/dΔt for a Gaussian centred at `center`: s_near inside its window, s_far outside;
+    /// 1 for the identity.
     #[inline]
-    pub fn slope(&self, dt: f32) -> f32 {
+    pub fn slope(&self, center: f32, dt: f32) -> f32 {
         match *self {
             Self::Identity => 1.0,
             Self::Tow { lambda, .. } => {
                 let (s_near, s_far) = self.slopes();
-                if dt.abs() <= 0.5 * lambda {
+                if dt.abs() <= self.window_fraction(center, dt) * lambda {
                     s_near
                 } else {
                     s_far
@@ -92,18 +143,20 @@ impl TimeWarp {
         }
     }
 
-    /// W⁻¹(w): the offset Δt with W(Δt) = w (W is odd, continuous and strictly increasing).
+    /// W⁻¹(w) for a Gaussian centred at `center`: the offset Δt with W(Δt) = w (W is
+    /// continuous, strictly increasing and keeps the sign).
     #[inline]
-    pub fn inverse(&self, w: f32) -> f32 {
+    pub fn inverse(&self, center: f32, w: f32) -> f32 {
         match *self {
             Self::Identity => w,
-            Self::Tow { lambda, rho } => {
+            Self::Tow { lambda, rho, .. } => {
                 let (s_near, s_far) = self.slopes();
+                let fraction = self.window_fraction(center, w);
                 let a = w.abs();
-                if a <= 0.5 * rho {
+                if a <= fraction * rho {
                     w / s_near
                 } else {
-                    (0.5 * lambda + (a - 0.5 * rho) / s_far).copysign(w)
+                    (fraction * lambda + (a - fraction * rho) / s_far).copysign(w)
                 }
             }
         }
@@ -114,6 +167,9 @@ impl TimeWarp {
 mod tests {
     use super::*;
 
+    /// An interior temporal centre, where every window is centred.
+    const MID: f32 = 0.5;
+
     fn warps() -> [TimeWarp; 3] {
         [
             TimeWarp::tow(50.0, 300, 0.75),
@@ -121,6 +177,7 @@ mod tests {
             TimeWarp::Tow {
                 lambda: 0.3,
                 rho: 0.2,
+                one_sided_ends: false,
             },
         ]
     }
@@ -132,7 +189,8 @@ mod tests {
             w,
             TimeWarp::Tow {
                 lambda: 50.0 / 300.0,
-                rho: 0.75
+                rho: 0.75,
+                one_sided_ends: false,
             }
         );
         // Window covering the whole sequence: no warp.
@@ -146,22 +204,22 @@ mod tests {
     fn identity_is_identity() {
         let w = TimeWarp::Identity;
         for x in [-1.0, -0.3, 0.0, 0.2, 1.0] {
-            assert_eq!(w.apply(x), x);
-            assert_eq!(w.inverse(x), x);
-            assert_eq!(w.slope(x), 1.0);
+            assert_eq!(w.apply(MID, x), x);
+            assert_eq!(w.inverse(MID, x), x);
+            assert_eq!(w.slope(MID, x), 1.0);
         }
     }
 
     #[test]
     fn continuous_at_window_edges() {
         for w in warps() {
-            let TimeWarp::Tow { lambda, rho } = w else {
+            let TimeWarp::Tow { lambda, rho, .. } = w else {
                 unreachable!()
             };
             for sign in [-1.0f32, 1.0] {
                 let edge = sign * 0.5 * lambda;
-                let inside = w.apply(edge);
-                let outside = w.apply(edge + sign * 1e-6);
+                let inside = w.apply(MID, edge);
+                let outside = w.apply(MID, edge + sign * 1e-6);
                 assert!((inside - sign * 0.5 * rho).abs() < 1e-6, "{inside}");
                 assert!((outside - inside).abs() < 1e-5, "{inside} vs {outside}");
             }
@@ -171,12 +229,16 @@ mod tests {
     #[test]
     fn odd_and_preserves_span() {
         for w in warps() {
-            let TimeWarp::Tow { lambda, rho } = w else {
+            let TimeWarp::Tow { lambda, rho, .. } = w else {
                 unreachable!()
             };
             // The unit-length span centred on t_i is preserved: W(±½) = ±½.
-            assert!((w.apply(0.5) - 0.5).abs() < 1e-6, "{}", w.apply(0.5));
-            assert!((w.apply(-0.5) + 0.5).abs() < 1e-6);
+            assert!(
+                (w.apply(MID, 0.5) - 0.5).abs() < 1e-6,
+                "{}",
+                w.apply(MID, 0.5)
+            );
+            assert!((w.apply(MID, -0.5) + 0.5).abs() < 1e-6);
             // More generally the whole sequence t ∈ [0, 1] keeps its length 1 in warped time,
             // W(1 − t_i) − W(−t_i) = 1, whenever both ends lie outside the window; a fraction ρ
             // of it is the window's.
@@ -185,18 +247,18 @@ mod tests {
                 if center < 0.5 * lambda || 1.0 - center < 0.5 * lambda {
                     continue;
                 }
-                let span = w.apply(1.0 - center) - w.apply(-center);
+                let span = w.apply(center, 1.0 - center) - w.apply(center, -center);
                 assert!((span - 1.0).abs() < 1e-5, "t_i = {center}: span {span}");
-                let window = w.apply(0.5 * lambda) - w.apply(-0.5 * lambda);
+                let window = w.apply(MID, 0.5 * lambda) - w.apply(MID, -0.5 * lambda);
                 assert!((window - rho).abs() < 1e-6);
             }
             // Beyond: W(1) = ρ/2 + s_far·(1 − λ/2), i.e. not 1 (see the module docs).
             let s_far = (1.0 - rho) / (1.0 - lambda);
-            assert!((w.apply(1.0) - (0.5 * rho + s_far * (1.0 - 0.5 * lambda))).abs() < 1e-6);
-            assert_eq!(w.apply(0.0), 0.0);
+            assert!((w.apply(MID, 1.0) - (0.5 * rho + s_far * (1.0 - 0.5 * lambda))).abs() < 1e-6);
+            assert_eq!(w.apply(MID, 0.0), 0.0);
             for i in 0..=200 {
                 let x = -1.0 + 0.01 * i as f32;
-                assert_eq!(w.apply(-x), -w.apply(x));
+                assert_eq!(w.apply(MID, -x), -w.apply(MID, x));
             }
         }
     }
@@ -204,32 +266,32 @@ mod tests {
     #[test]
     fn slope_and_monotonicity() {
         for w in warps() {
-            let TimeWarp::Tow { lambda, rho } = w else {
+            let TimeWarp::Tow { lambda, rho, .. } = w else {
                 unreachable!()
             };
             let s_near = rho / lambda;
             let s_far = (1.0 - rho) / (1.0 - lambda);
-            assert_eq!(w.slope(0.0), s_near);
-            assert_eq!(w.slope(0.49 * lambda), s_near);
-            assert_eq!(w.slope(-0.49 * lambda), s_near);
-            assert_eq!(w.slope(0.51 * lambda), s_far);
-            assert_eq!(w.slope(-0.9), s_far);
+            assert_eq!(w.slope(MID, 0.0), s_near);
+            assert_eq!(w.slope(MID, 0.49 * lambda), s_near);
+            assert_eq!(w.slope(MID, -0.49 * lambda), s_near);
+            assert_eq!(w.slope(MID, 0.51 * lambda), s_far);
+            assert_eq!(w.slope(MID, -0.9), s_far);
             // Inside the window W(Δt) = (ρ/λ)·Δt.
             let x = 0.3 * lambda;
-            assert!((w.apply(x) - s_near * x).abs() < 1e-7);
+            assert!((w.apply(MID, x) - s_near * x).abs() < 1e-7);
             // Finite differences agree with the slope away from the kinks.
             for x in [-0.9f32, -0.2 * lambda, 0.1 * lambda, 0.7] {
                 let h = 1e-3 * lambda;
-                let fd = (w.apply(x + h) - w.apply(x - h)) / (2.0 * h);
+                let fd = (w.apply(MID, x + h) - w.apply(MID, x - h)) / (2.0 * h);
                 assert!(
-                    (fd - w.slope(x)).abs() < 1e-2 * w.slope(x),
+                    (fd - w.slope(MID, x)).abs() < 1e-2 * w.slope(MID, x),
                     "{fd} vs {}",
-                    w.slope(x)
+                    w.slope(MID, x)
                 );
             }
-            let mut prev = w.apply(-1.0);
+            let mut prev = w.apply(MID, -1.0);
             for i in 1..=400 {
-                let next = w.apply(-1.0 + 0.005 * i as f32);
+                let next = w.apply(MID, -1.0 + 0.005 * i as f32);
                 assert!(next > prev);
                 prev = next;
             }
@@ -241,11 +303,88 @@ mod tests {
         for w in warps() {
             for i in 0..=400 {
                 let x = -1.2 + 0.006 * i as f32;
-                let back = w.inverse(w.apply(x));
+                let back = w.inverse(MID, w.apply(MID, x));
                 assert!((back - x).abs() < 1e-5, "{x} -> {back}");
-                let fwd = w.apply(w.inverse(x));
+                let fwd = w.apply(MID, w.inverse(MID, x));
                 assert!((fwd - x).abs() < 1e-5, "{x} -> {fwd}");
             }
         }
+    }
+
+    /// One-sided end windows: a Gaussian centred at t_i = 0 (t_i = 1) has the whole window on
+    /// the sequence's side: W = s_near·Δt up to Δt = λ (down to −λ), continuous there at ±ρ,
+    /// W(±1) = ±1 so the sequence keeps its warped length 1; s_far on the outer side, the
+    /// slope matches finite differences, W stays increasing and the inverse round-trips.
+    /// Interior centres, and every centre with the option off, keep the centred window bit
+    /// for bit.
+    #[test]
+    fn one_sided_end_windows() {
+        for centred in warps() {
+            let w = centred.with_one_sided_ends(true);
+            let TimeWarp::Tow { lambda, rho, .. } = w else {
+                unreachable!()
+            };
+            let (s_near, s_far) = (rho / lambda, (1.0 - rho) / (1.0 - lambda));
+            for (center, side) in [(0.0f32, 1.0f32), (1.0, -1.0)] {
+                let edge = side * lambda;
+                assert!((w.apply(center, edge) - side * rho).abs() < 1e-6);
+                let beyond = w.apply(center, edge + side * 1e-6);
+                assert!((beyond - side * rho).abs() < 1e-5, "{beyond}");
+                assert!(
+                    (w.apply(center, side) - side).abs() < 1e-5,
+                    "W(±1) = {}",
+                    w.apply(center, side)
+                );
+                assert!(
+                    (w.apply(center, side * 0.9 * lambda) - side * s_near * 0.9 * lambda).abs()
+                        < 1e-6
+                );
+                assert_eq!(w.slope(center, side * 0.99 * lambda), s_near);
+                assert_eq!(w.slope(center, side * 1.01 * lambda), s_far);
+                // The side outside the sequence has no window.
+                assert_eq!(w.slope(center, -side * 0.01 * lambda), s_far);
+                assert!((w.apply(center, -side * 0.1) + side * s_far * 0.1).abs() < 1e-7);
+                for x in [-0.9f32, -0.5 * lambda, 0.3 * lambda, 0.7] {
+                    let h = 1e-3 * lambda;
+                    let fd = (w.apply(center, x + h) - w.apply(center, x - h)) / (2.0 * h);
+                    let slope = w.slope(center, x);
+                    assert!((fd - slope).abs() < 1e-2 * slope, "{fd} vs {slope}");
+                }
+                let mut prev = w.apply(center, -1.2);
+                for i in 1..=400 {
+                    let x = -1.2 + 0.006 * i as f32;
+                    let next = w.apply(center, x);
+                    assert!(next > prev);
+                    prev = next;
+                    let back = w.inverse(center, next);
+                    assert!((back - x).abs() < 1e-5, "{x} -> {back}");
+                    let fwd = w.apply(center, w.inverse(center, x));
+                    assert!((fwd - x).abs() < 1e-5, "{x} -> {fwd}");
+                }
+                for i in 0..=200 {
+                    let x = -1.0 + 0.01 * i as f32;
+                    assert_eq!(centred.apply(center, x), centred.apply(MID, x));
+                    assert_eq!(centred.inverse(center, x), centred.inverse(MID, x));
+                }
+            }
+            for center in [1e-6, 0.3, 0.999_999] {
+                for i in 0..=200 {
+                    let x = -1.0 + 0.01 * i as f32;
+                    assert_eq!(
+                        w.apply(center, x).to_bits(),
+                        centred.apply(center, x).to_bits()
+                    );
+                    assert_eq!(w.slope(center, x), centred.slope(center, x));
+                    assert_eq!(
+                        w.inverse(center, x).to_bits(),
+                        centred.inverse(center, x).to_bits()
+                    );
+                }
+            }
+        }
+        assert_eq!(
+            TimeWarp::Identity.with_one_sided_ends(true),
+            TimeWarp::Identity
+        );
     }
 }

@@ -235,6 +235,10 @@ pub struct TowConfig {
     pub window_frames: f32,
     /// Fraction of the temporal capacity inside the window (paper 0.75, implementation 0.7).
     pub rho: f32,
+    /// Give a Gaussian centred at the sequence's first (last) instant the whole window after
+    /// (before) its centre, inside the sequence, instead of half of it outside (authors'
+    /// implementation; the paper centres every window: false).
+    pub one_sided_ends: bool,
 }
 
 impl Default for TowConfig {
@@ -243,6 +247,7 @@ impl Default for TowConfig {
             enabled: true,
             window_frames: 50.0,
             rho: 0.75,
+            one_sided_ends: false,
         }
     }
 }
