@@ -209,8 +209,9 @@ fn random_temporal(rng: &mut ChaCha8Rng, n: usize, model: TemporalOpacity) -> Ve
 
 /// `accumulate_stats` on the GPU equals the CPU system over three views at random times, for
 /// VAD on and off, minimum opacity on and off, both temporal opacity models and the three time
-/// warps (identity, TOW with centred and with one-sided end windows): counts and radii exactly, the weighted gradient and weight sums within 1e-6
-/// relative, the gradient-weighted time offset within 1e-6 of Σw·g, the lifespan sums
+/// warps (identity, TOW with centred and with one-sided end windows): counts and radii
+/// exactly, the weighted gradient and weight sums within 1e-6 relative, the
+/// gradient-weighted time offset within 1e-6 of Σw·g, the lifespan sums
 /// (three lifespans in [0, 1]) within 1e-5 absolute: Vulkan lets `exp` err by 3 + 2|x| ulp,
 /// about 2e-6 relative for the raw temporal scales of training, and the time warp's far slope
 /// (0.3) magnifies that in the lifespan.
