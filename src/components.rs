@@ -437,16 +437,26 @@ param_groups!(declare_params);
 
 /// This iteration's gradient of the loss with respect to parameter component `P`.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[repr(transparent)]
 pub struct Grad<P: Param>(pub P);
 
 /// Adam first and second moments for parameter component `P`.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C)]
 pub struct Adam<P: Param> {
     /// First moment (running mean of the gradient).
     pub m: P,
     /// Second moment (running mean of the squared gradient).
     pub v: P,
 }
+
+// SAFETY: `Grad<P>` is a transparent wrapper of the plain-data `P`; `Adam<P>` is two `P`s in
+// C layout, and `P` (all `f32`) has no padding, so neither has padding or invalid bit patterns.
+// This lets the optimiser step a whole column of them as one flat `f32` slice.
+unsafe impl<P: Param> Zeroable for Grad<P> {}
+unsafe impl<P: Param> Pod for Grad<P> {}
+unsafe impl<P: Param> Zeroable for Adam<P> {}
+unsafe impl<P: Param> Pod for Adam<P> {}
 
 impl GaussianParams {
     /// All SH coefficients, band 0 first.
