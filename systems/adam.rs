@@ -176,6 +176,51 @@ fn adam_values(
     rates: &[f32],
     bias: BiasCorrection,
 ) {
+    // The groups' widths as constants, so that the loop over one Gaussian's values unrolls
+    // (most groups hold 1 to 8 values, too few for a loop of unknown length to pay).
+    macro_rules! fixed_widths {
+        ($($width:literal)*) => {
+            match (floats, rates.len()) {
+                $(($width, $width) => adam_fixed::<$width>(values, grads, moments, rates, bias),)*
+                _ => adam_any(values, grads, moments, floats, rates, bias),
+            }
+        };
+    }
+    fixed_widths!(1 3 6 8 28 45)
+}
+
+/// [`adam_values`] for groups of `WIDTH` values, all stepped.
+#[inline]
+fn adam_fixed<const WIDTH: usize>(
+    values: &mut [f32],
+    grads: &[f32],
+    moments: &mut [f32],
+    rates: &[f32],
+    bias: BiasCorrection,
+) {
+    let rates: &[f32; WIDTH] = rates.try_into().expect("one rate per value");
+    let gaussians = values
+        .as_chunks_mut::<WIDTH>()
+        .0
+        .iter_mut()
+        .zip(grads.as_chunks::<WIDTH>().0)
+        .zip(moments.as_chunks_mut::<WIDTH>().0.as_chunks_mut::<2>().0);
+    for ((x, g), [m, v]) in gaussians {
+        for j in 0..WIDTH {
+            adam_update(&mut x[j], g[j], &mut m[j], &mut v[j], rates[j], bias);
+        }
+    }
+}
+
+/// [`adam_values`] for any width, stepping the first `rates.len()` values of each Gaussian.
+fn adam_any(
+    values: &mut [f32],
+    grads: &[f32],
+    moments: &mut [f32],
+    floats: usize,
+    rates: &[f32],
+    bias: BiasCorrection,
+) {
     let gaussians = values
         .chunks_exact_mut(floats)
         .zip(grads.chunks_exact(floats))
@@ -251,7 +296,16 @@ mod tests {
     #[test]
     fn adam_values_equal_scalar_updates() {
         let bias = BiasCorrection::after(7);
-        for (floats, active) in [(1, 1), (3, 3), (28, 28), (45, 45), (45, 24), (45, 0)] {
+        for (floats, active) in [
+            (1, 1),
+            (3, 3),
+            (5, 5),
+            (8, 8),
+            (28, 28),
+            (45, 45),
+            (45, 24),
+            (45, 0),
+        ] {
             let gaussians = 37;
             let value = |i: usize| ((i * 7919) % 1000) as f32 / 250.0 - 2.0;
             let mut x: Vec<f32> = (0..gaussians * floats).map(value).collect();
