@@ -181,12 +181,25 @@ fn adam_values(
     macro_rules! fixed_widths {
         ($($width:literal)*) => {
             match (floats, rates.len()) {
-                $(($width, $width) => adam_fixed::<$width>(values, grads, moments, rates, bias),)*
-                _ => adam_any(values, grads, moments, floats, rates, bias),
+                $(($width, $width) => {
+                    return adam_fixed::<$width>(values, grads, moments, rates, bias)
+                })*
+                _ => {}
             }
         };
     }
-    fixed_widths!(1 3 6 8 28 45)
+    fixed_widths!(1 3 6 8 28 45);
+    // Any other width, or a group whose last values are not stepped.
+    let gaussians = values
+        .chunks_exact_mut(floats)
+        .zip(grads.chunks_exact(floats))
+        .zip(moments.chunks_exact_mut(2 * floats));
+    for ((x, g), mv) in gaussians {
+        let (m, v) = mv.split_at_mut(floats);
+        for ((((x, g), m), v), lr) in x.iter_mut().zip(g).zip(m).zip(v).zip(rates) {
+            adam_update(x, *g, m, v, *lr, bias);
+        }
+    }
 }
 
 /// [`adam_values`] for groups of `WIDTH` values, all stepped.
@@ -208,27 +221,6 @@ fn adam_fixed<const WIDTH: usize>(
     for ((x, g), [m, v]) in gaussians {
         for j in 0..WIDTH {
             adam_update(&mut x[j], g[j], &mut m[j], &mut v[j], rates[j], bias);
-        }
-    }
-}
-
-/// [`adam_values`] for any width, stepping the first `rates.len()` values of each Gaussian.
-fn adam_any(
-    values: &mut [f32],
-    grads: &[f32],
-    moments: &mut [f32],
-    floats: usize,
-    rates: &[f32],
-    bias: BiasCorrection,
-) {
-    let gaussians = values
-        .chunks_exact_mut(floats)
-        .zip(grads.chunks_exact(floats))
-        .zip(moments.chunks_exact_mut(2 * floats));
-    for ((x, g), mv) in gaussians {
-        let (m, v) = mv.split_at_mut(floats);
-        for ((((x, g), m), v), lr) in x.iter_mut().zip(g).zip(m).zip(v).zip(rates) {
-            adam_update(x, *g, m, v, *lr, bias);
         }
     }
 }
