@@ -8,6 +8,7 @@ use crate::components::{
     Adam, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, SplatSlot,
     Temporal, each_param,
 };
+use crate::model::deform::FOURIER_TERMS;
 use crate::model::exposure::Exposure;
 use crate::model::sh::{SH_COEFFS, coeff_count};
 use crate::resources::{CameraExposures, Settings, SplatBuffers, TrainState};
@@ -40,11 +41,11 @@ impl ParamGroup for Position {
 
 impl ParamGroup for Fourier {
     fn learning_rates(lr: &LearningRates, position_lr: f32) -> Self {
-        let coeff = [[lr.fourier_cos_sin * position_lr; 3]; 4];
+        let coeff = [[lr.fourier_cos_sin * position_lr; 3]; FOURIER_TERMS];
         Self {
             cos: coeff,
             sin: coeff,
-            phase: [lr.fourier_phase * position_lr; 4],
+            phase: [lr.fourier_phase * position_lr; FOURIER_TERMS],
         }
     }
 }
