@@ -156,6 +156,9 @@ pub struct ViewOrder {
     pub order: Vec<usize>,
     /// Position in `order` of the next view to sample; a new epoch starts at the end.
     pub next: usize,
+    /// Loss of each training view when last drawn (None before its first draw), which
+    /// `train.repeat_hard_views` ranks; empty when that is off.
+    pub losses: Vec<Option<f32>>,
 }
 
 /// The run's single source of randomness (same seed, same run).

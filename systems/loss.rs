@@ -5,7 +5,7 @@ use bevy_ecs::prelude::*;
 use crate::metrics::loss::{LossValue, training_loss};
 use crate::resources::{
     CameraExposures, CoarseViews, LossImage, ReadFailure, ReadFault, Settings, SplatBuffers,
-    TrainState, TrainingViews, ViewSample, views_at,
+    TrainState, TrainingViews, ViewOrder, ViewSample, views_at,
 };
 
 /// Compares the render with the ground-truth image of the sampled view, recomposited over the
@@ -22,6 +22,7 @@ pub fn loss(
     mut loss: ResMut<LossImage>,
     mut state: ResMut<TrainState>,
     mut read_fault: ResMut<ReadFault>,
+    mut order: ResMut<ViewOrder>,
 ) {
     let index = sample.view.expect("training views come from the dataset");
     let loss = &mut *loss;
@@ -74,4 +75,9 @@ pub fn loss(
         }
     };
     state.loss = loss.value;
+    // What `train.repeat_hard_views` ranks when the next epoch is drawn.
+    if settings.train.repeat_hard_views > 0.0 && loss.value.total.is_finite() {
+        order.losses.resize(dataset.train.len(), None);
+        order.losses[index] = Some(loss.value.total);
+    }
 }

@@ -42,22 +42,31 @@ fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
 ///
 /// Checked with and without per-camera exposure compensation, whose corrections and Adam
 /// moments must survive the stop too, and with clones centred at their gradient's time, which
-/// reads the statistics' time offsets.
+/// reads the statistics' time offsets, and with hard views drawn twice per epoch, whose
+/// per-view losses must survive the stop.
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
     let (config, dataset) = tiny_scene();
-    check_resume(&config, &dataset);
+    check_resume(&config, &dataset, 17);
     let mut config = config;
     config.train.camera_exposure = true;
-    check_resume(&config, &dataset);
+    check_resume(&config, &dataset, 17);
     config.densify.clone_time = CloneTime::Gradient;
-    check_resume(&config, &dataset);
+    check_resume(&config, &dataset, 17);
+    // Stop inside the second epoch, the first one to hold repeated views.
+    let views = dataset.train.len() as u32;
+    config.train.repeat_hard_views = 0.5;
+    config.train.iterations = views + 30;
+    check_resume(
+        &config,
+        &dataset,
+        views + 5 + u32::from((views + 5) % 10 == 0),
+    );
 }
 
-fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>) {
+fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>, stop: u32) {
     let config = config.clone();
     let total = config.train.iterations;
-    let stop = 17;
 
     let mut straight = Trainer::new(&config, dataset.clone());
     let mut straight_log = TrainingLog::default();
@@ -109,6 +118,16 @@ fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>) {
         densified > stop,
         "a densification step should follow the stop (last at {densified})"
     );
+    if config.train.repeat_hard_views > 0.0 {
+        assert!(
+            saved.state.view_losses.iter().any(Option::is_some),
+            "the views' losses should have been recorded before the stop"
+        );
+        assert!(
+            a.state.view_order.len() > dataset.train.len(),
+            "an epoch with repeated hard views should have been drawn"
+        );
+    }
     assert_eq!(a.state, b.state, "counters, view order or RNG differ");
     assert_eq!(a.gaussians.len(), b.gaussians.len());
     for (i, (x, y)) in a.gaussians.iter().zip(&b.gaussians).enumerate() {

@@ -137,6 +137,10 @@ pub struct CheckpointState {
     pub view_order: Vec<usize>,
     /// Index into `view_order` of the next view to train on.
     pub view_next: usize,
+    /// Loss of each training view when last drawn, with `train.repeat_hard_views` (empty
+    /// otherwise, and in checkpoints from before it existed).
+    #[serde(default)]
+    pub view_losses: Vec<Option<f32>>,
     /// State of the run's random generator.
     pub rng: RngState,
     /// The scene configuration the run was trained with.
@@ -186,6 +190,7 @@ impl Checkpoint {
             last_densify: (d.iteration, d.cloned, d.split, d.pruned),
             view_order: order.order.clone(),
             view_next: order.next,
+            view_losses: order.losses.clone(),
             rng: RngState::of(&world.resource::<Rng>().0),
             scene: scene.clone(),
             camera_exposures: world.get_resource::<CameraExposures>().cloned(),
@@ -228,6 +233,7 @@ impl Checkpoint {
         *world.resource_mut::<ViewOrder>() = ViewOrder {
             order: s.view_order.clone(),
             next: s.view_next,
+            losses: s.view_losses.clone(),
         };
         // Checked when loading.
         let rng = s.rng.restore().expect("word position checked by load");

@@ -278,6 +278,14 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
     let t = &config.train;
     nonzero("train.iterations", t.iterations)?;
     in_range("train.lambda_dssim", t.lambda_dssim, 0.0, true, 1.0, true)?;
+    in_range(
+        "train.repeat_hard_views",
+        t.repeat_hard_views,
+        0.0,
+        true,
+        1.0,
+        true,
+    )?;
     positive("train.near_plane", t.near_plane)?;
     nonzero("train.coarse_downscale", t.coarse_downscale)?;
     if t.coarse_downscale > 1 && t.coarse_until == 0 {

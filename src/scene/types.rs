@@ -563,6 +563,10 @@ pub struct TrainConfig {
     /// background in the training views, and they show as floaters in held-out views; over
     /// random colours they cost loss and fade. Evaluation and renders use `background`.
     pub random_background: bool,
+    /// Fraction of the training views drawn a second time in each epoch: those whose loss was
+    /// highest when last drawn (0 = every view once per epoch, the default). Spends more
+    /// iterations where the model fits worst, e.g. the fast end of a monocular sequence.
+    pub repeat_hard_views: f32,
     /// Weight of D-SSIM in the loss (0.2).
     pub lambda_dssim: f32,
     /// Gaussians closer to the camera than this (camera-space depth, scene units) are not
@@ -631,6 +635,7 @@ impl Default for TrainConfig {
             seed: 0,
             background: [0.0; 3],
             random_background: false,
+            repeat_hard_views: 0.0,
             lambda_dssim: 0.2,
             near_plane: 0.01,
             sh_increase_interval: 1000,
