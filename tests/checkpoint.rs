@@ -60,7 +60,7 @@ fn resumed_run_matches_uninterrupted_run() {
     check_resume(
         &config,
         &dataset,
-        views + 5 + u32::from((views + 5) % 10 == 0),
+        views + 5 + u32::from((views + 5).is_multiple_of(10)),
     );
 }
 
