@@ -309,6 +309,7 @@ fn resident_baseline_counts_faded_gaussians_like_the_cpu() {
         *trainer.world.resource_mut::<ViewOrder>() = ViewOrder {
             order: vec![at_frame_1],
             next: 0,
+            ..ViewOrder::default()
         };
     }
     cpu.step();
