@@ -50,9 +50,13 @@ struct StatsParams {
     time: f32,
     // 1: a Gaussian centred at t_i ≤ 0 (≥ 1) has the whole window on the sequence's side.
     one_sided_ends: u32,
+    // 1: the warp's corners are rounded (TimeWarp's `smooth`).
+    smooth_corners: u32,
 }
 
 const LN_5: f32 = 1.609438;
+// model/warp.rs's SMOOTH_INVERSE_STEPS.
+const SMOOTH_INVERSE_STEPS: u32 = 40u;
 const ASYMMETRIC_MAX_WIDTH: f32 = 1.1;
 // exp() arguments are capped here so that they stay finite (e^80 ≈ 5.5e34); the CPU's
 // infinities give the same lifespans.
@@ -80,10 +84,26 @@ fn warp_inverse(w: f32, fraction: f32) -> f32 {
     if params.warp == 0u {
         return w;
     }
+    let e = fraction * params.lambda;
+    var x = e + (w - fraction * params.rho) / params.s_far;
     if w <= fraction * params.rho {
-        return w / params.s_near;
+        x = w / params.s_near;
     }
-    return fraction * params.lambda + (w - fraction * params.rho) / params.s_far;
+    if params.smooth_corners == 1u && e > 0.0 {
+        // Newton from the piecewise-linear inverse, as model/warp.rs does (tanh's argument
+        // capped: tanh(20) is 1 in f32, and a large one may overflow inside tanh).
+        for (var i = 0u; i < SMOOTH_INVERSE_STEPS; i++) {
+            let th = tanh(min(x / e, 20.0));
+            let value = params.s_far * x + (params.s_near - params.s_far) * e * th;
+            let slope = params.s_far + (params.s_near - params.s_far) * (1.0 - th * th);
+            let step = (value - w) / slope;
+            x -= step;
+            if abs(step) <= 1e-7 * max(x, 1.0) {
+                break;
+            }
+        }
+    }
+    return x;
 }
 
 // min(w_min · e^raw, 1.1).

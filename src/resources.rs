@@ -53,6 +53,7 @@ impl Settings {
         let warp = if tow.enabled {
             TimeWarp::tow(tow.window_frames, frame_count, tow.rho)
                 .with_one_sided_ends(tow.one_sided_ends)
+                .with_smooth_corners(tow.smooth)
         } else {
             TimeWarp::Identity
         };

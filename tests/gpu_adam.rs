@@ -233,6 +233,10 @@ fn gpu_stats_equal_cpu_accumulate_stats() {
                     TimeWarp::Identity,
                     TimeWarp::tow(50.0, 300, 0.75),
                     TimeWarp::tow(50.0, 300, 0.75).with_one_sided_ends(true),
+                    TimeWarp::tow(50.0, 300, 0.75).with_smooth_corners(true),
+                    TimeWarp::tow(50.0, 300, 0.75)
+                        .with_one_sided_ends(true)
+                        .with_smooth_corners(true),
                 ] {
                     // With VAD, dispatches as 2D grids (16 workgroups in rows of 3).
                     tadgs::gpu::set_max_dispatch_width(if vad { 3 } else { 65_535 });

@@ -65,7 +65,8 @@ struct StatsParams {
     lambda: f32,
     time: f32,
     one_sided_ends: u32,
-    _pad: [u32; 2],
+    smooth_corners: u32,
+    _pad: u32,
 }
 
 impl StatsParams {
@@ -74,13 +75,14 @@ impl StatsParams {
             TemporalOpacity::Rbf => (0, 0.0),
             TemporalOpacity::Asymmetric { w_min } => (1, w_min),
         };
-        let (warp, lambda, rho, one_sided_ends) = match config.warp {
-            TimeWarp::Identity => (0, 0.0, 0.0, false),
+        let (warp, lambda, rho, one_sided_ends, smooth) = match config.warp {
+            TimeWarp::Identity => (0, 0.0, 0.0, false, false),
             TimeWarp::Tow {
                 lambda,
                 rho,
                 one_sided_ends,
-            } => (1, lambda, rho, one_sided_ends),
+                smooth,
+            } => (1, lambda, rho, one_sided_ends, smooth),
         };
         Self {
             count,
@@ -102,7 +104,8 @@ impl StatsParams {
             lambda,
             time: config.time,
             one_sided_ends: u32::from(one_sided_ends),
-            _pad: [0; 2],
+            smooth_corners: u32::from(smooth),
+            _pad: 0,
         }
     }
 }

@@ -816,16 +816,24 @@ mod tests {
     #[test]
     fn centre_gradient_matches_fd() {
         let mut rng = rng();
-        let warp = TimeWarp::tow(20.0, 100, 0.75);
+        for warp in [
+            TimeWarp::tow(20.0, 100, 0.75),
+            TimeWarp::tow(20.0, 100, 0.75).with_smooth_corners(true),
+        ] {
+            centre_gradient_matches_fd_for(&mut rng, warp);
+        }
+    }
+
+    fn centre_gradient_matches_fd_for(rng: &mut ChaCha8Rng, warp: TimeWarp) {
         for _ in 0..16 {
-            let c0: [f32; 4] = uniform(&mut rng, 1.0);
-            let c1: [f32; 4] = uniform(&mut rng, 1.0);
-            let d0: [f32; 3] = uniform(&mut rng, 1.0);
-            let d1: [f32; 3] = uniform(&mut rng, 1.0);
-            let d_q: [f32; 4] = uniform(&mut rng, 1.0);
-            let d_s = Vec3::from(uniform::<3>(&mut rng, 1.0));
+            let c0: [f32; 4] = uniform(rng, 1.0);
+            let c1: [f32; 4] = uniform(rng, 1.0);
+            let d0: [f32; 3] = uniform(rng, 1.0);
+            let d1: [f32; 3] = uniform(rng, 1.0);
+            let d_q: [f32; 4] = uniform(rng, 1.0);
+            let d_s = Vec3::from(uniform::<3>(rng, 1.0));
             let (t, centre): (f32, f32) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
-            // Stay away from the warp's kinks at |t − t_i| = λ/2.
+            // Stay away from the piecewise warp's kinks at |t − t_i| = λ/2.
             let lambda = 0.2f32;
             if ((t - centre).abs() - 0.5 * lambda).abs() < 1e-2 {
                 continue;
@@ -883,6 +891,7 @@ mod tests {
             lambda: 0.2,
             rho: 0.5,
             one_sided_ends: false,
+            smooth: false,
         };
         let raw = [(LN_5 / 0.16).ln(), 0.0];
         assert!((lifespan_fraction(rbf, raw, 0.5, &warp) - 0.68).abs() < 1e-5);
@@ -906,8 +915,13 @@ mod tests {
                 lambda: 0.4,
                 rho: 0.3,
                 one_sided_ends: false,
+                smooth: false,
             },
             TimeWarp::tow(50.0, 300, 0.75).with_one_sided_ends(true),
+            TimeWarp::tow(50.0, 300, 0.75).with_smooth_corners(true),
+            TimeWarp::tow(50.0, 300, 0.75)
+                .with_one_sided_ends(true)
+                .with_smooth_corners(true),
         ];
         let models = [TemporalOpacity::Rbf, TemporalOpacity::asymmetric(300)];
         let mut rng = rng();
@@ -943,6 +957,7 @@ mod tests {
             TimeWarp::tow(50.0, frames, 0.75),
             TimeWarp::tow(50.0, frames, 0.7),
             TimeWarp::tow(50.0, frames, 0.75).with_one_sided_ends(true),
+            TimeWarp::tow(50.0, frames, 0.75).with_smooth_corners(true),
         ];
         let models = [TemporalOpacity::Rbf, TemporalOpacity::asymmetric(frames)];
         for warp in warps {

@@ -17,6 +17,15 @@
 //! Gaussian a one-sided window of the whole λ inside the sequence instead
 //! (`model.tow.one_sided_ends`): W is then odd only about interior centres, and the sequence
 //! keeps its length 1 for the end centres too (W(1) = 1 at t_i = 0).
+//!
+//! The piecewise-linear W has corners at the window's edges, where its slope jumps by
+//! s_near/s_far (6× for λ = ⅓, ρ = 0.75), so a motion that is smooth in real time needs a
+//! trajectory with a kink in warped time, which the few Fourier terms cannot follow. With
+//! `model.tow.smooth` the corners are rounded: on a side whose window extent is e (λ/2, or
+//! the one-sided λ or 0), |W| = s_far·|Δt| + (s_near − s_far)·e·tanh(|Δt|/e). That has the
+//! same slope s_near at the centre and the same far branch as |Δt| grows (the gap,
+//! (s_near − s_far)·e·(1 − tanh(|Δt|/e)), is under 1 % of the window's stretch from 2.7·e on),
+//! and a slope that falls smoothly in between.
 
 /// The temporal warp W applied to the offset Δt = t − t_i.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -33,8 +42,15 @@ pub enum TimeWarp {
         /// Whether a Gaussian centred at t_i ≤ 0 (t_i ≥ 1) gets the window 0 ≤ Δt ≤ λ
         /// (−λ ≤ Δt ≤ 0) instead of |Δt| ≤ λ/2 (authors' implementation).
         one_sided_ends: bool,
+        /// Round the window's corners (the tanh form of the module docs) instead of the
+        /// paper's piecewise-linear W.
+        smooth: bool,
     },
 }
+
+/// Newton steps of [`TimeWarp::inverse`] for the smooth warp at most; it converges in 3 to 8
+/// from the piecewise-linear inverse, more only for ρ within a few thousandths of 0 or 1.
+const SMOOTH_INVERSE_STEPS: usize = 40;
 
 /// Smallest and largest ρ accepted by [`TimeWarp::tow`]; keeps both slopes positive so that
 /// the warp stays invertible.
@@ -59,20 +75,26 @@ impl TimeWarp {
             lambda,
             rho,
             one_sided_ends: false,
+            smooth: false,
         }
+    }
+
+    /// The same warp with rounded corners (`on`) or the paper's piecewise-linear form; the
+    /// identity stays the identity.
+    pub fn with_smooth_corners(mut self, on: bool) -> Self {
+        if let Self::Tow { smooth, .. } = &mut self {
+            *smooth = on;
+        }
+        self
     }
 
     /// The same warp with one-sided windows for Gaussians centred at the sequence's ends
     /// (`on`) or centred windows everywhere; the identity stays the identity.
-    pub fn with_one_sided_ends(self, on: bool) -> Self {
-        match self {
-            Self::Identity => Self::Identity,
-            Self::Tow { lambda, rho, .. } => Self::Tow {
-                lambda,
-                rho,
-                one_sided_ends: on,
-            },
+    pub fn with_one_sided_ends(mut self, on: bool) -> Self {
+        if let Self::Tow { one_sided_ends, .. } = &mut self {
+            *one_sided_ends = on;
         }
+        self
     }
 
     /// Slopes (s_near, s_far) of the warp; (1, 1) for the identity.
@@ -107,34 +129,45 @@ impl TimeWarp {
 
     /// W(Δt) for a Gaussian centred at `center`: s_near·Δt inside the window (|Δt| ≤ λ/2, or
     /// the one-sided end window), else sign(Δt)·(s_near·e + s_far·(|Δt| − e)) with e the
-    /// window's extent on that side.
+    /// window's extent on that side; with rounded corners sign(Δt)·(s_far·|Δt| +
+    /// (s_near − s_far)·e·tanh(|Δt|/e)).
     #[inline]
     pub fn apply(&self, center: f32, dt: f32) -> f32 {
         match *self {
             Self::Identity => dt,
-            Self::Tow { lambda, rho, .. } => {
+            Self::Tow {
+                lambda,
+                rho,
+                smooth,
+                ..
+            } => {
                 let (s_near, s_far) = self.slopes();
                 let fraction = self.window_fraction(center, dt);
-                let a = dt.abs();
-                if a <= fraction * lambda {
+                let (a, e) = (dt.abs(), fraction * lambda);
+                if smooth {
+                    smooth_warp(a, e, s_near, s_far).0.copysign(dt)
+                } else if a <= e {
                     s_near * dt
                 } else {
                     // s_near·(fraction·λ) = fraction·ρ.
-                    (fraction * rho + s_far * (a - fraction * lambda)).copysign(dt)
+                    (fraction * rho + s_far * (a - e)).copysign(dt)
                 }
             }
         }
     }
 
-    /// dW/dΔt for a Gaussian centred at `center`: s_near inside its window, s_far outside;
-    /// 1 for the identity.
+    /// dW/dΔt for a Gaussian centred at `center`: s_near inside its window, s_far outside (in
+    /// between with rounded corners); 1 for the identity.
     #[inline]
     pub fn slope(&self, center: f32, dt: f32) -> f32 {
         match *self {
             Self::Identity => 1.0,
-            Self::Tow { lambda, .. } => {
+            Self::Tow { lambda, smooth, .. } => {
                 let (s_near, s_far) = self.slopes();
-                if dt.abs() <= self.window_fraction(center, dt) * lambda {
+                let e = self.window_fraction(center, dt) * lambda;
+                if smooth {
+                    smooth_warp(dt.abs(), e, s_near, s_far).1
+                } else if dt.abs() <= e {
                     s_near
                 } else {
                     s_far
@@ -149,18 +182,51 @@ impl TimeWarp {
     pub fn inverse(&self, center: f32, w: f32) -> f32 {
         match *self {
             Self::Identity => w,
-            Self::Tow { lambda, rho, .. } => {
+            Self::Tow {
+                lambda,
+                rho,
+                smooth,
+                ..
+            } => {
                 let (s_near, s_far) = self.slopes();
                 let fraction = self.window_fraction(center, w);
-                let a = w.abs();
-                if a <= fraction * rho {
-                    w / s_near
+                let (a, e) = (w.abs(), fraction * lambda);
+                let mut x = if a <= fraction * rho {
+                    a / s_near
                 } else {
-                    (fraction * lambda + (a - fraction * rho) / s_far).copysign(w)
+                    e + (a - fraction * rho) / s_far
+                };
+                if smooth {
+                    // Newton from the piecewise-linear inverse. The rounded |W| lies below
+                    // the piecewise one where that is concave (ρ > λ) and above it where it
+                    // is convex, so every step moves towards the root from the same side.
+                    for _ in 0..SMOOTH_INVERSE_STEPS {
+                        let (value, slope) = smooth_warp(x, e, s_near, s_far);
+                        let step = (value - a) / slope;
+                        x -= step;
+                        if step.abs() <= 1e-7 * x.max(1.0) {
+                            break;
+                        }
+                    }
                 }
+                x.copysign(w)
             }
         }
     }
+}
+
+/// The rounded warp on one side: (|W|, dW/dΔt) at |Δt| = `a` for a window extent `e` on
+/// that side (no window, e = 0: the far slope throughout).
+#[inline]
+fn smooth_warp(a: f32, e: f32, s_near: f32, s_far: f32) -> (f32, f32) {
+    if e <= 0.0 {
+        return (s_far * a, s_far);
+    }
+    let th = (a / e).tanh();
+    (
+        s_far * a + (s_near - s_far) * e * th,
+        s_far + (s_near - s_far) * (1.0 - th * th),
+    )
 }
 
 #[cfg(test)]
@@ -178,6 +244,7 @@ mod tests {
                 lambda: 0.3,
                 rho: 0.2,
                 one_sided_ends: false,
+                smooth: false,
             },
         ]
     }
@@ -191,6 +258,7 @@ mod tests {
                 lambda: 50.0 / 300.0,
                 rho: 0.75,
                 one_sided_ends: false,
+                smooth: false,
             }
         );
         // Window covering the whole sequence: no warp.
@@ -309,6 +377,96 @@ mod tests {
                 assert!((fwd - x).abs() < 1e-5, "{x} -> {fwd}");
             }
         }
+    }
+
+    /// Rounded corners: slope s_near at the centre (the paper's), the paper's far branch in
+    /// the limit (the gap (s_near − s_far)·e·(1 − tanh(|Δt|/e)) exactly, under 1 % of the
+    /// window's stretch from |Δt| = 2.7·e on), below the piecewise W where it is concave (ρ > λ)
+    /// and above it where convex; odd for interior centres, strictly increasing, no kink
+    /// (finite differences match the slope everywhere, the window's edges included), and the
+    /// inverse round-trips to 1e-5, also for ρ close to 0 or 1 and for one-sided end windows.
+    #[test]
+    fn smooth_corners() {
+        let extremes = [
+            TimeWarp::Tow {
+                lambda: 1.0 / 3.0,
+                rho: 0.999,
+                one_sided_ends: false,
+                smooth: false,
+            },
+            TimeWarp::Tow {
+                lambda: 1.0 / 3.0,
+                rho: 0.001,
+                one_sided_ends: false,
+                smooth: false,
+            },
+        ];
+        for paper in warps().into_iter().chain(extremes) {
+            for one_sided in [false, true] {
+                let paper = paper.with_one_sided_ends(one_sided);
+                let w = paper.with_smooth_corners(true);
+                let TimeWarp::Tow { lambda, rho, .. } = w else {
+                    unreachable!()
+                };
+                let (s_near, s_far) = (rho / lambda, (1.0 - rho) / (1.0 - lambda));
+                for center in [0.0f32, MID, 1.0] {
+                    let e = |dt: f32| paper.window_fraction(center, dt) * lambda;
+                    if e(1e-3) > 0.0 {
+                        assert!((w.slope(center, 0.0) - s_near).abs() < 1e-5 * s_near);
+                    }
+                    let mut prev = w.apply(center, -1.2);
+                    for i in 1..=480 {
+                        let x = -1.2 + 0.005 * i as f32;
+                        let (smooth, piecewise) = (w.apply(center, x), paper.apply(center, x));
+                        assert!(smooth > prev, "not increasing at {x}");
+                        prev = smooth;
+                        if center == MID {
+                            assert_eq!(w.apply(center, -x), -smooth);
+                        }
+                        // Rounded below a concave piecewise W, above a convex one.
+                        let gap = (piecewise - smooth) * x.signum() * (rho - lambda).signum();
+                        assert!(gap >= -1e-6, "{x}: {smooth} vs {piecewise}");
+                        let ex = e(x);
+                        let expected = if ex > 0.0 {
+                            (s_near - s_far) * ex * (1.0 - (x.abs() / ex).tanh())
+                        } else {
+                            0.0
+                        };
+                        if x.abs() >= e(x) {
+                            assert!(
+                                (gap.abs() - expected.abs()).abs() < 1e-5,
+                                "{x}: gap {gap} vs {expected}"
+                            );
+                            if x.abs() >= 2.7 * ex {
+                                assert!(gap.abs() <= 0.01 * (s_near - s_far).abs() * ex + 1e-6);
+                            }
+                        }
+                        let h = 1e-3;
+                        let fd = (w.apply(center, x + h) - w.apply(center, x - h)) / (2.0 * h);
+                        let slope = w.slope(center, x);
+                        // Away from Δt = 0, where a one-sided window's two sides meet.
+                        if x.abs() > 2.0 * h {
+                            assert!(
+                                (fd - slope).abs() < 2e-3 * slope.max(1.0),
+                                "{x}: {fd} vs {slope}"
+                            );
+                        }
+                        // A flat W (ρ near 0 or 1) magnifies the rounding of W(x) by 1/slope.
+                        let back = w.inverse(center, smooth);
+                        assert!(
+                            (back - x).abs() < 1e-5 / slope.min(1.0),
+                            "{w:?} at {center}: {x} -> {back}"
+                        );
+                        let fwd = w.apply(center, w.inverse(center, x));
+                        assert!((fwd - x).abs() < 1e-5, "{w:?} at {center}: {x} -> {fwd}");
+                    }
+                }
+            }
+        }
+        assert_eq!(
+            TimeWarp::Identity.with_smooth_corners(true),
+            TimeWarp::Identity
+        );
     }
 
     /// One-sided end windows: a Gaussian centred at t_i = 0 (t_i = 1) has the whole window on

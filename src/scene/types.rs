@@ -239,6 +239,11 @@ pub struct TowConfig {
     /// (before) its centre, inside the sequence, instead of half of it outside (authors'
     /// implementation; the paper centres every window: false).
     pub one_sided_ends: bool,
+    /// Round the warp's corners at the window's edges: the same slope at the centre and the
+    /// same far branch, with the slope falling smoothly in between (a tanh), so that a motion
+    /// smooth in real time stays smooth in warped time (false: the paper's piecewise-linear
+    /// warp).
+    pub smooth: bool,
 }
 
 impl Default for TowConfig {
@@ -248,6 +253,7 @@ impl Default for TowConfig {
             window_frames: 50.0,
             rho: 0.75,
             one_sided_ends: false,
+            smooth: false,
         }
     }
 }
