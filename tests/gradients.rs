@@ -21,7 +21,7 @@ use tadgs::train::insert_resources;
 const W: u32 = 32;
 const H: u32 = 24;
 
-fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World {
+fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel, smooth_warp: bool) -> World {
     let camera = Camera::look_at(Vec3::new(0.3, -0.2, -4.0), Vec3::ZERO, Vec3::Y, W, H, 1.2);
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let target: Vec<[f32; 3]> = (0..(W * H) as usize)
@@ -48,6 +48,7 @@ fn world(phase: PhaseModel, opacity_model: tadgs::scene::OpacityModel) -> World 
     config.model.phase = phase;
     config.model.opacity = opacity_model;
     config.model.tow.window_frames = 4.0; // λ = 4/11: the view time lies outside some windows
+    config.model.tow.smooth = smooth_warp;
     // Learnt temporal centres, so that their gradient is computed and checked too.
     config.train.lr.temporal_center = 1e-3;
     let mut world = World::new();
@@ -181,8 +182,8 @@ const H_ROTATION: f32 = 3e-2;
 const H_SCALE: f32 = 1e-2;
 const H_COLOR: f32 = 1e-2;
 
-fn check_all(phase: PhaseModel, opacity: tadgs::scene::OpacityModel) {
-    let mut world = world(phase, opacity);
+fn check_all(phase: PhaseModel, opacity: tadgs::scene::OpacityModel, smooth_warp: bool) {
+    let mut world = world(phase, opacity, smooth_warp);
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     world.insert_resource(Weights(
         (0..W * H)
@@ -210,7 +211,22 @@ fn check_all(phase: PhaseModel, opacity: tadgs::scene::OpacityModel) {
 
 #[test]
 fn every_parameter_gradient_matches_finite_differences_paper_model() {
-    check_all(PhaseModel::PerGaussian, tadgs::scene::OpacityModel::Rbf);
+    check_all(
+        PhaseModel::PerGaussian,
+        tadgs::scene::OpacityModel::Rbf,
+        false,
+    );
+}
+
+/// The same with TOW's rounded corners (`model.tow.smooth`), whose slope W' enters the
+/// temporal centres' gradient.
+#[test]
+fn every_parameter_gradient_matches_finite_differences_smooth_warp() {
+    check_all(
+        PhaseModel::PerGaussian,
+        tadgs::scene::OpacityModel::Rbf,
+        true,
+    );
 }
 
 #[test]
@@ -218,5 +234,6 @@ fn every_parameter_gradient_matches_finite_differences_implementation_model() {
     check_all(
         PhaseModel::PerFrequency,
         tadgs::scene::OpacityModel::Asymmetric,
+        false,
     );
 }
