@@ -211,6 +211,13 @@ impl Deformed {
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SplatSlot(pub u32);
 
+/// The iteration through which Adam has brought this Gaussian's parameters and moments up to
+/// date. Only `train.deferred_adam` reads it: there a Gaussian that received no gradient is
+/// left behind until it next does or until every Gaussian catches up (see
+/// [`crate::systems::adam::adam_step`]). A checkpoint of any other run records the iteration.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AdamClock(pub u32);
+
 /// An optimised parameter component: all-`f32` plain data, declared in [`param_groups!`].
 pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync + 'static {
     /// Group name: logs, NaN reports, and the tensor names of model files and checkpoints.
@@ -524,5 +531,5 @@ pub fn spawn_gaussians_with<E: Bundle<Effect: NoBundleEffect>>(
 pub type GaussianBundle = (
     RequiredParams,
     OptimizerState,
-    (GradAccum, WarpedTime, Deformed, SplatSlot),
+    (GradAccum, WarpedTime, Deformed, SplatSlot, AdamClock),
 );

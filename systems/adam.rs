@@ -5,8 +5,8 @@ use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::{
-    Adam, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, SplatSlot,
-    Temporal, each_param,
+    Adam, AdamClock, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale,
+    SplatSlot, Temporal, each_param,
 };
 use crate::model::deform::FOURIER_TERMS;
 use crate::model::exposure::Exposure;
@@ -15,7 +15,7 @@ use crate::resources::{CameraExposures, Settings, SplatBuffers, TrainState};
 use crate::scene::LearningRates;
 
 pub use crate::model::adam::{BETA1, BETA2, EPSILON};
-use crate::model::adam::{BiasCorrection, adam_update};
+use crate::model::adam::{BiasCorrection, DeferredSums, adam_update, deferred_update};
 
 /// A parameter group: how each of its values' learning rate is set.
 pub trait ParamGroup: Param {
@@ -110,9 +110,40 @@ pub fn position_lr(lr: &LearningRates, iteration: u32, iterations: u32, extent: 
     (lr.position.ln() * (1.0 - t) + lr.position_final.ln() * t).exp() * extent
 }
 
+/// With `train.deferred_adam`, every Gaussian's skipped momentum steps are applied at
+/// iterations that are multiples of this, at densification and opacity-reset steps and at the
+/// last iteration (see [`catches_up`]).
+pub const DEFERRED_CATCH_UP_INTERVAL: u32 = 100;
+
+/// Whether iteration `iteration` brings every Gaussian up to date under
+/// `train.deferred_adam`: a multiple of [`DEFERRED_CATCH_UP_INTERVAL`], a densification or
+/// opacity-reset step (which read or reset parameters), or the run's last iteration. A pure
+/// function of the settings and the iteration, so a resumed run catches up where the
+/// uninterrupted one does. (Iterations past the last, as `tadgs bench` runs on a finished
+/// run's checkpoint, catch up only at the multiples.)
+pub fn catches_up(settings: &Settings, iteration: u32) -> bool {
+    let densify = &settings.densify;
+    iteration % DEFERRED_CATCH_UP_INTERVAL == 0
+        || iteration == settings.train.iterations
+        || crate::systems::densify::is_densify_step(densify, iteration)
+        || crate::systems::densify::is_opacity_reset(densify, settings.train.iterations, iteration)
+}
+
+/// The last iteration before `iteration` that caught every Gaussian up (0 if none).
+fn last_catch_up(settings: &Settings, iteration: u32) -> u32 {
+    (1..iteration)
+        .rev()
+        .take(DEFERRED_CATCH_UP_INTERVAL as usize)
+        .find(|&i| catches_up(settings, i))
+        .unwrap_or(0)
+}
+
 /// One Adam step on every Gaussian's `P`, with bias correction for the global step.
 /// With `train.visible_adam`, Gaussians that received no gradient
-/// ([`SplatBuffers::gradient_reached`]) are left as they are.
+/// ([`SplatBuffers::gradient_reached`]) are left as they are. With `train.deferred_adam` they
+/// are left as they are too, but the momentum steps dense Adam would have given them are
+/// applied in one update ([`DeferredSums`]) when they next receive a gradient and whenever
+/// [`catches_up`] says so; [`AdamClock`] records how far each Gaussian is.
 ///
 /// The query is walked in contiguous chunks (whole table columns), each read as flat `f32`
 /// slices: stepping one entity at a time cost about as much again as the updates themselves
@@ -121,30 +152,55 @@ pub fn adam_step<P: ParamGroup>(
     settings: Res<Settings>,
     state: Res<TrainState>,
     buffers: Option<Res<SplatBuffers>>,
-    mut params: Query<(&mut P, &Grad<P>, &mut Adam<P>, Option<&SplatSlot>)>,
+    mut deferred: Local<DeferredSums>,
+    mut params: Query<(
+        &mut P,
+        &Grad<P>,
+        &mut Adam<P>,
+        Option<&SplatSlot>,
+        Option<&AdamClock>,
+    )>,
 ) {
-    let lr = &settings.train.rates_at(state.iteration);
-    let rates = P::learning_rates(
-        lr,
-        position_lr(
+    let iteration = state.iteration;
+    let rates_at = |iteration: u32| {
+        let lr = &settings.train.rates_at(iteration);
+        P::learning_rates(
             lr,
-            state.iteration,
-            settings.train.iterations,
-            settings.extent,
-        ),
-    );
+            position_lr(lr, iteration, settings.train.iterations, settings.extent),
+        )
+    };
+    let rates = rates_at(iteration);
     let rates = &rates.values()[..P::active_values(state.sh_degree)];
-    let bias = BiasCorrection::after(state.iteration.max(1) as i32);
+    let bias = BiasCorrection::after(iteration.max(1) as i32);
     // Without the splatting stage's buffers (a world that only optimises), every Gaussian
     // counts as seen.
+    let train = &settings.train;
     let reached = buffers
         .as_deref()
-        .filter(|_| settings.train.visible_adam)
+        .filter(|_| train.visible_adam || train.deferred_adam)
         .map(|b| b.gradient_reached.as_slice());
+    let deferred = match reached {
+        Some(_) if train.deferred_adam => {
+            // The sums run from the last catch-up; fresh ones (a new or resumed run) start there.
+            let start = last_catch_up(&settings, iteration);
+            if deferred.width() != P::FLOATS
+                || deferred.start() != start
+                || deferred.end() >= iteration
+            {
+                *deferred = DeferredSums::new(start, P::FLOATS);
+            }
+            while deferred.end() < iteration {
+                let next = deferred.end() + 1;
+                deferred.push(rates_at(next).values());
+            }
+            Some((&*deferred, catches_up(&settings, iteration)))
+        }
+        _ => None,
+    };
     params
         .contiguous_par_iter_mut()
         .expect("parameter components are stored in tables, so the query is dense")
-        .for_each(|(mut values, grads, mut moments, slots)| {
+        .for_each(|(mut values, grads, mut moments, slots, clocks)| {
             let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
             let grads: &[f32] = bytemuck::cast_slice(grads);
             let moments: &mut [f32] = bytemuck::cast_slice_mut(&mut moments[..]);
@@ -156,13 +212,60 @@ pub fn adam_step<P: ParamGroup>(
                 .chunks_exact_mut(P::FLOATS)
                 .zip(grads.chunks_exact(P::FLOATS))
                 .zip(moments.chunks_exact_mut(2 * P::FLOATS))
-                .zip(slots);
-            for (((x, g), mv), slot) in gaussians {
-                if reached.get(slot.0 as usize).is_some_and(|&r| r) {
+                .zip(slots)
+                .enumerate();
+            let mut coefficients = [0.0; MAX_GROUP_FLOATS];
+            let coefficients = &mut coefficients[..rates.len()];
+            for (i, (((x, g), mv), slot)) in gaussians {
+                let seen = reached.get(slot.0 as usize).is_some_and(|&r| r);
+                if let Some((sums, catch_up)) = deferred {
+                    // Up to date through the last step it had (never before the sums start).
+                    let last = clocks.map_or(0, |c| c[i].0).clamp(sums.start(), iteration);
+                    let through = if seen { iteration - 1 } else { iteration };
+                    if last < through && (seen || catch_up) {
+                        sums.coefficients(last, through, coefficients);
+                        let (decay, epsilon) = (sums.decay(through - last), sums.epsilon(last));
+                        let (m, v) = mv.split_at_mut(P::FLOATS);
+                        for (((x, m), v), &c) in x.iter_mut().zip(m).zip(v).zip(&*coefficients) {
+                            deferred_update(x, m, v, c, epsilon, decay);
+                        }
+                    }
+                }
+                if seen {
                     adam_values(x, g, mv, P::FLOATS, rates, bias);
                 }
             }
         });
+}
+
+/// The most values a parameter group holds per Gaussian (the higher SH bands: 45).
+const MAX_GROUP_FLOATS: usize = 3 * (SH_COEFFS - 1);
+
+/// Marks how far [`adam_step`] brought each Gaussian under `train.deferred_adam`: this
+/// iteration for those that received a gradient, and for all at a catch-up ([`catches_up`]).
+pub fn advance_adam_clocks(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    buffers: Option<Res<SplatBuffers>>,
+    mut clocks: Query<(&mut AdamClock, Option<&SplatSlot>)>,
+) {
+    let iteration = state.iteration;
+    let reached = buffers.as_deref().map(|b| b.gradient_reached.as_slice());
+    let all = catches_up(&settings, iteration) || reached.is_none();
+    clocks.par_iter_mut().for_each(|(mut clock, slot)| {
+        let seen = || {
+            slot.and_then(|s| reached?.get(s.0 as usize).copied())
+                .unwrap_or(true)
+        };
+        if all || seen() {
+            clock.0 = iteration;
+        }
+    });
+}
+
+/// Run condition: `train.deferred_adam` is on.
+pub fn deferring(settings: Res<Settings>) -> bool {
+    settings.train.deferred_adam
 }
 
 /// Adam on consecutive Gaussians of one group: `values` and `grads` hold `floats` values per
@@ -273,10 +376,14 @@ pub fn adam_exposure(settings: Res<Settings>, exposures: Option<ResMut<CameraExp
 pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
     macro_rules! adam_steps {
         ($($group:ty,)*) => {
-            ($(adam_step::<$group>,)*).into_configs()
+            ($(adam_step::<$group>,)*)
         };
     }
-    each_param!(adam_steps)
+    (
+        each_param!(adam_steps),
+        advance_adam_clocks.run_if(deferring),
+    )
+        .chain()
 }
 
 #[cfg(test)]

@@ -114,8 +114,11 @@ pub fn densifying(settings: Res<Settings>, state: Res<TrainState>) -> bool {
 
 /// Run condition: this iteration is a densification step.
 pub fn densify_step(settings: Res<Settings>, state: Res<TrainState>) -> bool {
-    let d = &settings.densify;
-    let i = state.iteration;
+    is_densify_step(&settings.densify, state.iteration)
+}
+
+/// Whether iteration `i` clones, splits and prunes.
+pub fn is_densify_step(d: &DensifyConfig, i: u32) -> bool {
     i > d.from_iter && i <= d.until_iter && i % d.interval.max(1) == 0
 }
 

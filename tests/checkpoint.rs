@@ -43,12 +43,16 @@ fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
 /// Checked with and without per-camera exposure compensation, whose corrections and Adam
 /// moments must survive the stop too, and with clones centred at their gradient's time, which
 /// reads the statistics' time offsets, and with hard views drawn twice per epoch, whose
-/// per-view losses must survive the stop.
+/// per-view losses must survive the stop, and with deferred Adam, whose Gaussians left behind
+/// at the stop must keep how far behind they are.
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
     let (config, dataset) = tiny_scene();
     check_resume(&config, &dataset, 17);
     let mut config = config;
+    config.train.deferred_adam = true;
+    check_resume(&config, &dataset, 17);
+    config.train.deferred_adam = false;
     config.train.camera_exposure = true;
     check_resume(&config, &dataset, 17);
     config.densify.clone_time = CloneTime::Gradient;
@@ -87,6 +91,15 @@ fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>, stop: u32) {
         saved.gaussians.iter().any(|g| g.accum.count > 0),
         "the stop should fall where statistics are being accumulated"
     );
+    if config.train.deferred_adam {
+        assert!(
+            saved
+                .gaussians
+                .iter()
+                .any(|g| g.clock < stop && g.m != Default::default()),
+            "some Gaussian with momentum should be left behind at the stop"
+        );
+    }
     if let Some(exposures) = &saved.state.camera_exposures {
         assert!(
             exposures

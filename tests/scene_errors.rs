@@ -378,6 +378,15 @@ fn validate_names_each_bad_field() {
             c.train.visible_adam = true;
             c.train.backend = tadgs::scene::BackendKind::Gpu;
         }),
+        ("train.deferred_adam", |c| {
+            c.train.deferred_adam = true;
+            c.train.backend = tadgs::scene::BackendKind::Gpu;
+        }),
+        // Two ways of skipping unseen Gaussians at once.
+        ("train.deferred_adam", |c| {
+            c.train.deferred_adam = true;
+            c.train.visible_adam = true;
+        }),
         ("train.motion_smoothness.weight", |c| {
             c.train.motion_smoothness.weight = -0.1
         }),

@@ -1,13 +1,18 @@
 //! `train.visible_adam`: Adam steps only the Gaussians that received a gradient this iteration.
 //! A Gaussian seen at one iteration and unseen at the next keeps its parameters and moments
 //! bit for bit with the option, moves on its momentum without it, and every seen Gaussian
-//! steps exactly as with dense Adam.
+//! steps exactly as with dense Adam. `train.deferred_adam` leaves unseen Gaussians behind the
+//! same way and catches them up with dense Adam.
 
 use bevy_ecs::prelude::*;
 use tadgs::bench::benchmark_world;
-use tadgs::components::{Adam, Grad, Position, SplatSlot};
-use tadgs::resources::{DeformedGrad, Settings, SplatBuffers};
-use tadgs::systems::{adam, training_schedule};
+use tadgs::components::{
+    Adam, AdamClock, Color, Fourier, Grad, Opacity, Param, Position, Rotation, Scale, SplatSlot,
+    Temporal,
+};
+use tadgs::resources::{DeformedGrad, Settings, SplatBuffers, TrainState};
+use tadgs::systems::adam::{self, EPSILON};
+use tadgs::systems::training_schedule;
 
 /// Per Gaussian, in query order: position, its Adam moments and whether it got a gradient.
 type Snapshot = Vec<(Position, Adam<Position>, bool)>;
@@ -88,4 +93,181 @@ fn visible_adam_freezes_unseen_gaussians_and_steps_seen_ones_as_dense_adam() {
         stepped > 100 && frozen > 100 && drifted > 100,
         "{stepped} {frozen} {drifted}"
     );
+}
+
+/// Every Gaussian's value and moments of group `P`, in query order.
+fn group_state<P: Param>(world: &mut World) -> Vec<(P, Adam<P>)> {
+    world
+        .query::<(&P, &Adam<P>)>()
+        .iter(world)
+        .map(|(p, a)| (*p, *a))
+        .collect()
+}
+
+/// Gives group `P` of every Gaussian the gradient `saved` where `seen` (by slot) and zero
+/// elsewhere, as the backward pass leaves a Gaussian nothing reaches.
+fn mask_gradients<P: Param>(world: &mut World, saved: &[Grad<P>], seen: &[bool]) {
+    for ((slot, mut grad), saved) in world
+        .query::<(&SplatSlot, &mut Grad<P>)>()
+        .iter_mut(world)
+        .zip(saved)
+    {
+        *grad = if seen[slot.0 as usize] {
+            *saved
+        } else {
+            Grad::default()
+        };
+    }
+}
+
+fn saved_gradients<P: Param>(world: &mut World) -> Vec<Grad<P>> {
+    world.query::<&Grad<P>>().iter(world).copied().collect()
+}
+
+/// Values and moments of every group after one training iteration and then Adam-only steps
+/// 2..=`last` in which a changing third of the Gaussians is seen (each with its first
+/// gradient) and the rest gets none.
+fn world_after_sparse_steps(deferred: bool, last: u32) -> World {
+    let mut world = benchmark_world(2000, 96, 54, true);
+    {
+        let mut settings = world.resource_mut::<Settings>();
+        settings.train.iterations = 1000;
+        settings.densify.until_iter = 0;
+        // Positions that move well above their rounding, which the dense run pays each step.
+        settings.train.lr.position *= 100.0;
+        settings.train.lr.position_final *= 100.0;
+        settings.train.deferred_adam = deferred;
+    }
+    training_schedule().run(&mut world);
+    macro_rules! for_groups {
+        ($f:ident, $($arg:expr),*) => {
+            ($f::<Position>($($arg),*), $f::<Fourier>($($arg),*), $f::<Temporal>($($arg),*),
+             $f::<Opacity>($($arg),*), $f::<Rotation>($($arg),*), $f::<Scale>($($arg),*),
+             $f::<Color>($($arg),*))
+        };
+    }
+    let saved = for_groups!(saved_gradients, &mut world);
+    let slots = world.resource::<SplatBuffers>().gradient_reached.len();
+    let mut adam_only = Schedule::default();
+    adam_only.add_systems(adam::adam_systems());
+    for iteration in 2..=last {
+        world.resource_mut::<TrainState>().iteration = iteration;
+        let seen: Vec<bool> = (0..slots)
+            .map(|slot| (slot as u32 * 7 + iteration * 13) % 3 == 0)
+            .collect();
+        world.resource_mut::<SplatBuffers>().gradient_reached = seen.clone();
+        mask_gradients(&mut world, &saved.0, &seen);
+        mask_gradients(&mut world, &saved.1, &seen);
+        mask_gradients(&mut world, &saved.2, &seen);
+        mask_gradients(&mut world, &saved.3, &seen);
+        mask_gradients(&mut world, &saved.4, &seen);
+        mask_gradients(&mut world, &saved.5, &seen);
+        mask_gradients(&mut world, &saved.6, &seen);
+        adam_only.run(&mut world);
+    }
+    world
+}
+
+/// Deferred and dense values of group `P` agree to 1e-4 of the largest move since `start`
+/// plus 2e-6 of the value (dense Adam rounds once per step), moments to 1e-4 relative. Where
+/// the second moment is so small (√v < 1e4·ε, gradients of 1e-11 and below) that Adam's ε
+/// weighs on the skipped steps, which deferred Adam takes in one, to 1e-2 of the move.
+fn assert_group_matches<P: Param>(deferred: &mut World, dense: &mut World, start: &mut World) {
+    let (a, b, s) = (
+        group_state::<P>(deferred),
+        group_state::<P>(dense),
+        group_state::<P>(start),
+    );
+    let moved = b
+        .iter()
+        .zip(&s)
+        .flat_map(|(b, s)| {
+            b.0.values()
+                .iter()
+                .zip(s.0.values())
+                .map(|(x, y)| (x - y).abs())
+        })
+        .fold(0.0f32, f32::max);
+    assert!(moved > 0.0, "{}: nothing moved", P::NAME);
+    let mut ordinary_values = 0;
+    for (a, b) in a.iter().zip(&b) {
+        let values = a.0.values().iter().zip(b.0.values());
+        for ((x, y), v) in values.zip(b.1.v.values()) {
+            let ordinary = v.sqrt() >= 1e4 * EPSILON;
+            let tolerance = if ordinary { 1e-4 } else { 1e-2 };
+            assert!(
+                (x - y).abs() <= tolerance * moved + 2e-6 * y.abs(),
+                "{}: deferred {x} against dense {y} (largest move {moved}, v {v})",
+                P::NAME
+            );
+            ordinary_values += usize::from(ordinary);
+        }
+        let moments = |adam: &Adam<P>| [adam.m.values().to_vec(), adam.v.values().to_vec()];
+        for (x, y) in moments(&a.1)
+            .iter()
+            .flatten()
+            .zip(moments(&b.1).iter().flatten())
+        {
+            assert!(
+                (x - y).abs() <= 1e-4 * y.abs() + 1e-30,
+                "{} moments: deferred {x} against dense {y}",
+                P::NAME
+            );
+        }
+    }
+    assert!(
+        ordinary_values > 100,
+        "{}: {ordinary_values} values had gradients",
+        P::NAME
+    );
+}
+
+/// `train.deferred_adam`: at a catch-up iteration (100) every Gaussian's parameters and
+/// moments of every group equal dense Adam's given the same gradients, to 1e-4 of the
+/// largest move; before it, a Gaussian unseen at an iteration is left exactly as it was.
+#[test]
+fn deferred_adam_catches_up_with_dense_adam() {
+    let mut start = world_after_sparse_steps(false, 1);
+    let mut deferred = world_after_sparse_steps(true, 100);
+    let mut dense = world_after_sparse_steps(false, 100);
+    assert_group_matches::<Position>(&mut deferred, &mut dense, &mut start);
+    assert_group_matches::<Fourier>(&mut deferred, &mut dense, &mut start);
+    assert_group_matches::<Temporal>(&mut deferred, &mut dense, &mut start);
+    assert_group_matches::<Opacity>(&mut deferred, &mut dense, &mut start);
+    assert_group_matches::<Rotation>(&mut deferred, &mut dense, &mut start);
+    assert_group_matches::<Scale>(&mut deferred, &mut dense, &mut start);
+    assert_group_matches::<Color>(&mut deferred, &mut dense, &mut start);
+    // Every Gaussian is current after the catch-up.
+    let clocks: Vec<u32> = deferred
+        .query::<&AdamClock>()
+        .iter(&deferred)
+        .map(|c| c.0)
+        .collect();
+    assert!(
+        clocks.iter().all(|&c| c == 100),
+        "clocks {:?}",
+        &clocks[..5]
+    );
+
+    // Between catch-ups the Gaussians not seen are left behind, untouched.
+    let mut before = world_after_sparse_steps(true, 49);
+    let mut after = world_after_sparse_steps(true, 50);
+    let seen = after.resource::<SplatBuffers>().gradient_reached.clone();
+    let slots: Vec<u32> = after
+        .query::<&SplatSlot>()
+        .iter(&after)
+        .map(|s| s.0)
+        .collect();
+    let (b, a) = (
+        group_state::<Position>(&mut before),
+        group_state::<Position>(&mut after),
+    );
+    let mut left = 0;
+    for ((b, a), slot) in b.iter().zip(&a).zip(&slots) {
+        if !seen[*slot as usize] {
+            assert_eq!(a, b);
+            left += 1;
+        }
+    }
+    assert!(left > 500, "{left}");
 }

@@ -4,7 +4,9 @@
 //! - `tensors.safetensors`: per Gaussian, every parameter component (as in the model file),
 //!   both Adam moments of every group (`adam.m.<group>`, `adam.v.<group>`) and the
 //!   densification statistics (`grad_accum`: Σw·g, Σw, Σψ̄, max radius; `grad_accum_count`;
-//!   `grad_accum_offset`: Σw·g·Δt, absent from older checkpoints, which read it as 0).
+//!   `grad_accum_offset`: Σw·g·Δt, absent from older checkpoints, which read it as 0), and
+//!   `adam_clock`, the iteration each Gaussian's Adam state is current at (behind the
+//!   checkpoint's only under `train.deferred_adam`; older checkpoints read the iteration).
 //!   Adam's step count is the iteration (bias correction uses the global step).
 //! - `log.json`: the run's history for the report ([`TrainingLog`]).
 //! - `state.ron`, written last: the scene settings, the counters (iteration, SH degree, last
@@ -24,9 +26,11 @@ use serde::{Deserialize, Serialize};
 use super::model::{
     ModelError, NamedTensor, checked_metadata, param_tensors, read_param_tensors, write_tensors,
 };
-use crate::components::{AdamRefs, GaussianParams, GradAccum, ParamRefs, spawn_gaussians};
+use crate::components::{
+    AdamClock, AdamRefs, GaussianParams, GradAccum, ParamRefs, spawn_gaussians,
+};
 use crate::report::TrainingLog;
-use crate::resources::{CameraExposures, DensifyReport, Rng, TrainState, ViewOrder};
+use crate::resources::{CameraExposures, DensifyReport, Rng, Settings, TrainState, ViewOrder};
 use crate::scene::SceneConfig;
 
 /// The tensors of a checkpoint.
@@ -86,6 +90,8 @@ pub struct GaussianState {
     pub v: GaussianParams,
     /// Densification statistics since the last densification step.
     pub accum: GradAccum,
+    /// The iteration the Adam state is current at ([`AdamClock`]).
+    pub clock: u32,
 }
 
 /// The ChaCha8 generator's position: seed, stream and word position (128-bit, as text).
@@ -165,20 +171,23 @@ pub struct Checkpoint {
 impl Checkpoint {
     /// Captures the run in `world` (trained with `scene`) and its `log`.
     pub fn from_world(world: &mut World, scene: &SceneConfig, log: &TrainingLog) -> Self {
+        let train = *world.resource::<TrainState>();
+        // Only deferred Adam leaves Gaussians behind; any other run is current everywhere.
+        let deferred = world.resource::<Settings>().train.deferred_adam;
         let gaussians: Vec<GaussianState> = world
-            .query::<(ParamRefs, AdamRefs, &GradAccum)>()
+            .query::<(ParamRefs, AdamRefs, &GradAccum, Option<&AdamClock>)>()
             .iter(world)
-            .map(|(params, adam, accum)| {
+            .map(|(params, adam, accum, clock)| {
                 let [m, v] = GaussianParams::moments_from_refs(adam);
                 GaussianState {
                     params: GaussianParams::from_refs(params),
                     m,
                     v,
                     accum: *accum,
+                    clock: clock.filter(|_| deferred).map_or(train.iteration, |c| c.0),
                 }
             })
             .collect();
-        let train = *world.resource::<TrainState>();
         let order = world.resource::<ViewOrder>();
         let d = train.last_densify;
         let state = CheckpointState {
@@ -216,6 +225,7 @@ impl Checkpoint {
             self.gaussians.iter().map(|g| {
                 let (mut bundle, optional) = g.params.bundles_with_moments(&g.m, &g.v);
                 bundle.2.0 = g.accum;
+                bundle.2.4 = AdamClock(g.clock);
                 (bundle, optional)
             }),
         );
@@ -286,6 +296,16 @@ impl Checkpoint {
             tensors.extend(param_tensors(&moments, prefix));
         }
         tensors.extend(accum_tensors(&self.gaussians));
+        tensors.push(NamedTensor {
+            name: "adam_clock".into(),
+            dtype: Dtype::U32,
+            width: 1,
+            bytes: self
+                .gaussians
+                .iter()
+                .flat_map(|g| g.clock.to_le_bytes())
+                .collect(),
+        });
         let metadata = HashMap::from([
             ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
             ("version".to_string(), CHECKPOINT_VERSION.to_string()),
@@ -500,6 +520,11 @@ fn read_gaussian_states(
         }
         Err(_) => None,
     };
+    // Checkpoints written before `train.deferred_adam` are current at their iteration.
+    let clocks = match tensors.tensor("adam_clock") {
+        Ok(_) => Some(raw_tensor(&tensors, "adam_clock", Dtype::U32, [n, 1]).map_err(&invalid)?),
+        Err(_) => None,
+    };
     let word = |bytes: &[u8], i: usize| -> [u8; 4] {
         bytes[4 * i..4 * i + 4].try_into().expect("4 bytes")
     };
@@ -516,6 +541,7 @@ fn read_gaussian_states(
                 count: u32::from_le_bytes(word(counts, i)),
                 weighted_offset: offsets.map_or(0.0, |o| f32::from_le_bytes(word(o, i))),
             },
+            clock: clocks.map_or(state.iteration, |c| u32::from_le_bytes(word(c, i))),
         })
         .collect())
 }

@@ -368,6 +368,22 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
                 .to_string(),
         );
     }
+    if t.deferred_adam && t.backend == BackendKind::Gpu {
+        return fail(
+            "train.deferred_adam",
+            "is true, but the GPU backend's Adam steps every Gaussian: use \
+             `train.backend: Cpu` or `deferred_adam: false`"
+                .to_string(),
+        );
+    }
+    if t.deferred_adam && t.visible_adam {
+        return fail(
+            "train.deferred_adam",
+            "is true, and so is train.visible_adam: choose one (deferred Adam also steps only \
+             the Gaussians that received a gradient)"
+                .to_string(),
+        );
+    }
     if lr.position_final > lr.position {
         return fail(
             "train.lr.position_final",

@@ -609,6 +609,14 @@ pub struct TrainConfig {
     /// momentum alone. In a 4D model most Gaussians live far from the view's time, so this
     /// skips most of the optimiser's work (as gsplat's `visible_adam`). CPU backend only.
     pub visible_adam: bool,
+    /// Adam steps only the Gaussians that received a gradient, like `visible_adam`, but keeps
+    /// dense Adam's trajectory: the momentum steps a Gaussian missed are applied in one update
+    /// when it next receives a gradient, and every Gaussian's every 100 iterations, at
+    /// densification and opacity-reset steps and at the end. The parameters then equal dense
+    /// Adam's up to rounding, except that a Gaussian's gradient is taken before its missed
+    /// steps are applied. Costs about what `visible_adam` does. CPU backend only; not with
+    /// `visible_adam`.
+    pub deferred_adam: bool,
     /// Motion-smoothness regulariser: neighbouring Gaussians move alike (off by default).
     pub motion_smoothness: MotionSmoothness,
     /// Learning rates per parameter group.
@@ -650,6 +658,7 @@ impl Default for TrainConfig {
             static_until: 0,
             camera_exposure: false,
             visible_adam: false,
+            deferred_adam: false,
             motion_smoothness: MotionSmoothness::default(),
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
