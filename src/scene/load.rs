@@ -360,21 +360,20 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
             );
         }
     }
-    if t.visible_adam && t.backend == BackendKind::Gpu {
-        return fail(
-            "train.visible_adam",
-            "is true, but the GPU backend's Adam steps every Gaussian: use \
-             `train.backend: Cpu` or `visible_adam: false`"
-                .to_string(),
-        );
-    }
-    if t.deferred_adam && t.backend == BackendKind::Gpu {
-        return fail(
-            "train.deferred_adam",
-            "is true, but the GPU backend's Adam steps every Gaussian: use \
-             `train.backend: Cpu` or `deferred_adam: false`"
-                .to_string(),
-        );
+    // Both options skip Gaussians in the CPU optimiser only.
+    for (name, on) in [
+        ("visible_adam", t.visible_adam),
+        ("deferred_adam", t.deferred_adam),
+    ] {
+        if on && t.backend == BackendKind::Gpu {
+            return fail(
+                &format!("train.{name}"),
+                format!(
+                    "is true, but the GPU backend's Adam steps every Gaussian: use \
+                     `train.backend: Cpu` or `{name}: false`"
+                ),
+            );
+        }
     }
     if t.deferred_adam && t.visible_adam {
         return fail(
