@@ -614,7 +614,7 @@ pub struct TrainConfig {
     /// when it next receives a gradient, and every Gaussian's every 100 iterations, at
     /// densification and opacity-reset steps and at the end. The parameters then equal dense
     /// Adam's up to rounding, except that a Gaussian's gradient is taken before its missed
-    /// steps are applied. Costs about what `visible_adam` does. CPU backend only; not with
+    /// steps are applied. Skips the same work as `visible_adam`. CPU backend only; not with
     /// `visible_adam`.
     pub deferred_adam: bool,
     /// Motion-smoothness regulariser: neighbouring Gaussians move alike (off by default).
