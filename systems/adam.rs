@@ -123,7 +123,7 @@ pub const DEFERRED_CATCH_UP_INTERVAL: u32 = 100;
 /// run's checkpoint, catch up only at the multiples.)
 pub fn catches_up(settings: &Settings, iteration: u32) -> bool {
     let densify = &settings.densify;
-    iteration % DEFERRED_CATCH_UP_INTERVAL == 0
+    iteration.is_multiple_of(DEFERRED_CATCH_UP_INTERVAL)
         || iteration == settings.train.iterations
         || crate::systems::densify::is_densify_step(densify, iteration)
         || crate::systems::densify::is_opacity_reset(densify, settings.train.iterations, iteration)
@@ -137,6 +137,15 @@ fn last_catch_up(settings: &Settings, iteration: u32) -> u32 {
         .find(|&i| catches_up(settings, i))
         .unwrap_or(0)
 }
+
+/// What [`adam_step`] reads and writes of each Gaussian for group `P`.
+type GroupState<P> = (
+    &'static mut P,
+    &'static Grad<P>,
+    &'static mut Adam<P>,
+    Option<&'static SplatSlot>,
+    Option<&'static AdamClock>,
+);
 
 /// One Adam step on every Gaussian's `P`, with bias correction for the global step.
 /// With `train.visible_adam`, Gaussians that received no gradient
@@ -153,13 +162,7 @@ pub fn adam_step<P: ParamGroup>(
     state: Res<TrainState>,
     buffers: Option<Res<SplatBuffers>>,
     mut deferred: Local<DeferredSums>,
-    mut params: Query<(
-        &mut P,
-        &Grad<P>,
-        &mut Adam<P>,
-        Option<&SplatSlot>,
-        Option<&AdamClock>,
-    )>,
+    mut params: Query<GroupState<P>>,
 ) {
     let iteration = state.iteration;
     let rates_at = |iteration: u32| {

@@ -119,7 +119,7 @@ pub fn densify_step(settings: Res<Settings>, state: Res<TrainState>) -> bool {
 
 /// Whether iteration `i` clones, splits and prunes.
 pub fn is_densify_step(d: &DensifyConfig, i: u32) -> bool {
-    i > d.from_iter && i <= d.until_iter && i % d.interval.max(1) == 0
+    i > d.from_iter && i <= d.until_iter && i.is_multiple_of(d.interval.max(1))
 }
 
 /// Run condition: this iteration resets the opacities.

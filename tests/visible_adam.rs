@@ -153,7 +153,7 @@ fn world_after_sparse_steps(deferred: bool, last: u32) -> World {
     for iteration in 2..=last {
         world.resource_mut::<TrainState>().iteration = iteration;
         let seen: Vec<bool> = (0..slots)
-            .map(|slot| (slot as u32 * 7 + iteration * 13) % 3 == 0)
+            .map(|slot| (slot as u32 * 7 + iteration * 13).is_multiple_of(3))
             .collect();
         world.resource_mut::<SplatBuffers>().gradient_reached = seen.clone();
         mask_gradients(&mut world, &saved.0, &seen);
