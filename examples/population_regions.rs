@@ -27,7 +27,7 @@ use tadgs::data::{Camera, Dataset};
 use tadgs::init::scene_extent;
 use tadgs::io::model::Model;
 use tadgs::model::deform::{lifespan_fraction, sigmoid};
-use tadgs::resources::{Settings, TrainState, ViewSample};
+use tadgs::resources::{DeformEveryGaussian, Settings, TrainState, ViewSample};
 use tadgs::scene::load_scene;
 use tadgs::systems::render_schedule;
 use tadgs::train::insert_render_resources;
@@ -98,6 +98,8 @@ fn classify(world: &mut World, dataset: &Dataset) -> Vec<Classified> {
     let settings = world.resource::<Settings>();
     let (model, warp) = (settings.opacity, settings.warp);
     let mut schedule = render_schedule();
+    // The regions are judged from every Gaussian's deformed mean, drawn or not.
+    world.insert_resource(DeformEveryGaussian);
     let mut classified = Vec::new();
     // Gaussians sit at a few anchor centres: deform once per centre.
     for frame in centres {

@@ -201,6 +201,18 @@ pub struct Deformed {
 }
 
 impl Deformed {
+    /// A Gaussian too faded to draw at the sampled time: its opacity σ(t) (below 1/255), the
+    /// origin as its mean, the identity rotation and zero scale and colour. The deformation
+    /// stage writes this instead of evaluating the motion and colour of a Gaussian that
+    /// nothing will draw (see [`crate::resources::DeformEveryGaussian`]).
+    pub fn faded(opacity: f32) -> Self {
+        Self {
+            opacity,
+            rotation: [1.0, 0.0, 0.0, 0.0],
+            ..Self::default()
+        }
+    }
+
     /// [`Self::mean`] as a [`Vec3`].
     pub fn mean(&self) -> Vec3 {
         Vec3::from_array(self.mean)

@@ -221,6 +221,15 @@ pub struct ReadFault(pub Option<ReadFailure>);
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct NumericFault(pub Option<Fault>);
 
+/// Asks the deformation stage to evaluate every Gaussian in full. Without it, a Gaussian whose
+/// σ(t) is below what the splatting stage draws gets only its opacity (its other
+/// [`crate::components::Deformed`] fields are left at [`crate::components::Deformed::faded`]'s
+/// values), unless a built-in stage reads the geometry of such Gaussians (the baseline's
+/// in-frustum view count, the motion-smoothness graph). Insert it when a system of your own
+/// reads the deformed geometry of Gaussians that are not drawn.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct DeformEveryGaussian;
+
 /// Gradient of the loss with respect to a deformed Gaussian (at the current time).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DeformedGrad {

@@ -7,20 +7,36 @@ use crate::components::{Deformed, ParamRefs, TimeWindow, WarpedTime, sh_coeffici
 use crate::model::deform::{
     fourier_offset, rotation_at, scale_at, scale_velocity, temporal_opacity, window_factor,
 };
+use crate::model::project::drawable;
 use crate::model::sh::sh_to_rgb;
-use crate::resources::{Settings, TrainState, ViewSample};
+use crate::resources::{DeformEveryGaussian, Settings, TrainState, ViewSample};
+use crate::systems::densify::counts_faded_views;
 
 /// The components the deformation reads: the parameters, the warped time and, in merged
 /// segment models, the time window.
 pub type DeformInputs<'a> = (ParamRefs<'a>, &'a WarpedTime, Option<&'a TimeWindow>);
 
-/// Evaluates every Gaussian at the sampled time into its [`Deformed`] component.
+/// Whether a stage reads the deformed geometry of Gaussians too faded to draw: the baseline's
+/// count of the views whose frustum holds a Gaussian, the motion-smoothness graph over the
+/// deformed means, or a system of the user's ([`DeformEveryGaussian`]).
+pub fn faded_geometry_read(settings: &Settings, every_gaussian: bool) -> bool {
+    every_gaussian
+        || counts_faded_views(&settings.densify)
+        || settings.train.motion_smoothness.weight > 0.0
+}
+
+/// Evaluates every Gaussian at the sampled time into its [`Deformed`] component. A Gaussian
+/// whose σ(t) is below what the splatting stage draws gets [`Deformed::faded`] unless
+/// [`faded_geometry_read`]: on a real capture most Gaussians live a few frames, so at any
+/// time most of them are faded, and their motion and colour would be evaluated for nothing.
 pub fn deform(
     settings: Res<Settings>,
     state: Res<TrainState>,
     sample: Res<ViewSample>,
+    every_gaussian: Option<Res<DeformEveryGaussian>>,
     mut gaussians: Query<(DeformInputs, &mut Deformed)>,
 ) {
+    let skip_faded = !faded_geometry_read(&settings, every_gaussian.is_some());
     let motion = settings.motion_basis();
     let opacity_model = settings.opacity;
     let scale_motion = settings.model.scale_motion;
@@ -33,6 +49,12 @@ pub fn deform(
             mut out,
         )| {
             let dtw = warped.dtw;
+            let opacity = temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw)
+                * window.map_or(1.0, |w| window_factor(w, time));
+            if skip_faded && !drawable(opacity) {
+                *out = Deformed::faded(opacity);
+                return;
+            }
             let mean = Vec3::from_array(pos.mean)
                 + fourier_offset(&fourier.cos, &fourier.sin, &fourier.phase, motion, dtw);
             let scale_velocity = scale_velocity(scale.d1, scale_motion);
@@ -40,8 +62,7 @@ pub fn deform(
                 mean: mean.to_array(),
                 rotation: rotation_at(rotation.c0, rotation.c1, dtw),
                 scale: scale_at(scale.d0, scale_velocity, dtw).to_array(),
-                opacity: temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw)
-                    * window.map_or(1.0, |w| window_factor(w, time)),
+                opacity,
                 color: sh_to_rgb(sh_degree, &sh_coefficients(color, rest), mean - eye),
             };
         },

@@ -596,3 +596,96 @@ fn random_background_fades_gaussians_of_the_background_colour() {
         "random {random} against fixed {fixed}"
     );
 }
+
+/// The deformation stage leaves Gaussians too faded to draw (σ(t) < 1/255) at
+/// `Deformed::faded`, and that changes nothing the iteration computes: against a world that
+/// evaluates every Gaussian (`DeformEveryGaussian`), the render, every gradient and the
+/// densification statistics are equal bit for bit, and the drawable Gaussians' `Deformed`
+/// too.
+#[test]
+fn faded_gaussians_are_not_evaluated_and_change_nothing() {
+    use tadgs::bench::benchmark_world;
+    use tadgs::resources::{DeformEveryGaussian, SplatBuffers};
+
+    let world_with = |every: bool| {
+        let mut world = benchmark_world(3000, 96, 64, true);
+        // Every third Gaussian fades below what is drawn.
+        for (i, mut opacity) in world
+            .query::<&mut Opacity>()
+            .iter_mut(&mut world)
+            .enumerate()
+        {
+            if i % 3 == 0 {
+                opacity.logit = -8.0;
+            }
+        }
+        if every {
+            world.insert_resource(DeformEveryGaussian);
+        }
+        training_schedule().run(&mut world);
+        world
+    };
+    let (mut skipping, mut evaluating) = (world_with(false), world_with(true));
+
+    fn rows<C: Component + Copy>(world: &mut World) -> Vec<C> {
+        let mut rows: Vec<(Entity, C)> = world
+            .query::<(Entity, &C)>()
+            .iter(world)
+            .map(|(e, c)| (e, *c))
+            .collect();
+        rows.sort_by_key(|r| r.0);
+        rows.into_iter().map(|r| r.1).collect()
+    }
+    fn bits<P: Param>(world: &mut World) -> Vec<u32> {
+        let grads = rows::<Grad<P>>(world);
+        grads
+            .iter()
+            .flat_map(|g| g.0.values().iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+            .collect()
+    }
+    let (skipped, evaluated) = (
+        rows::<Deformed>(&mut skipping),
+        rows::<Deformed>(&mut evaluating),
+    );
+    let faded = skipped
+        .iter()
+        .filter(|d| **d == Deformed::faded(d.opacity))
+        .count();
+    assert!(
+        faded >= 900,
+        "a third of the Gaussians are faded ({faded} left unevaluated)"
+    );
+    for (s, e) in skipped.iter().zip(&evaluated) {
+        assert_eq!(
+            s.opacity.to_bits(),
+            e.opacity.to_bits(),
+            "the opacity of every Gaussian"
+        );
+        if s.opacity >= 1.0 / 255.0 {
+            assert_eq!(s, e, "a drawable Gaussian is evaluated in full");
+        } else {
+            assert_eq!(*s, Deformed::faded(s.opacity), "a faded Gaussian is not");
+        }
+    }
+    let render = |world: &World| -> Vec<u32> {
+        let image = &world.resource::<SplatBuffers>().render.image.data;
+        image.iter().flat_map(|p| p.map(f32::to_bits)).collect()
+    };
+    assert_eq!(render(&skipping), render(&evaluating), "render");
+    macro_rules! same_grads {
+        ($($group:ty),*) => {
+            $(assert_eq!(
+                bits::<$group>(&mut skipping),
+                bits::<$group>(&mut evaluating),
+                "gradient of {}",
+                stringify!($group)
+            );)*
+        };
+    }
+    same_grads!(Position, Fourier, Temporal, Opacity, Rotation, Scale, Color);
+    assert_eq!(
+        rows::<GradAccum>(&mut skipping),
+        rows::<GradAccum>(&mut evaluating),
+        "statistics"
+    );
+}

@@ -14,6 +14,12 @@ pub const NEAR_PLANE: f32 = 0.01;
 pub const LOW_PASS: f32 = 0.3;
 /// Gaussians whose opacity is below this cannot produce a visible alpha and are culled.
 pub(crate) const MIN_OPACITY: f32 = 1.0 / 255.0;
+
+/// Whether a Gaussian of opacity σ can be drawn (σ ≥ [`MIN_OPACITY`]; a NaN cannot).
+#[inline]
+pub(crate) fn drawable(opacity: f32) -> bool {
+    opacity >= MIN_OPACITY
+}
 /// The Jacobian is evaluated at x/z clamped to this multiple of tan(fov/2).
 pub(crate) const FOV_CLAMP: f32 = 1.3;
 
@@ -210,7 +216,7 @@ pub fn project_beyond(
     cam: &Camera,
     near_plane: f32,
 ) -> Option<Projected> {
-    if !(opacity >= MIN_OPACITY) {
+    if !drawable(opacity) {
         return None;
     }
     let p_z = cam.rotation().row(2).dot(mean) + cam.translation().z;
