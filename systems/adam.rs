@@ -211,34 +211,98 @@ pub fn adam_step<P: ParamGroup>(
                 adam_values(values, grads, moments, P::FLOATS, rates, bias);
                 return;
             };
-            let gaussians = values
-                .chunks_exact_mut(P::FLOATS)
-                .zip(grads.chunks_exact(P::FLOATS))
-                .zip(moments.chunks_exact_mut(2 * P::FLOATS))
-                .zip(slots)
-                .enumerate();
+            let floats = P::FLOATS;
             let mut coefficients = [0.0; MAX_GROUP_FLOATS];
             let coefficients = &mut coefficients[..rates.len()];
-            for (i, (((x, g), mv), slot)) in gaussians {
-                let seen = reached.get(slot.0 as usize).is_some_and(|&r| r);
-                if let Some((sums, catch_up)) = deferred {
+            let catch_up = deferred.is_some_and(|(_, catch_up)| catch_up);
+            let mut step_row = |values: &mut [f32], moments: &mut [f32], i: usize, seen: bool| {
+                let x = &mut values[i * floats..(i + 1) * floats];
+                let mv = &mut moments[2 * i * floats..2 * (i + 1) * floats];
+                if let Some((sums, _)) = deferred {
                     // Up to date through the last step it had (never before the sums start).
                     let last = clocks.map_or(0, |c| c[i].0).clamp(sums.start(), iteration);
                     let through = if seen { iteration - 1 } else { iteration };
-                    if last < through && (seen || catch_up) {
+                    if last < through {
                         sums.coefficients(last, through, coefficients);
                         let (decay, epsilon) = (sums.decay(through - last), sums.epsilon(last));
-                        let (m, v) = mv.split_at_mut(P::FLOATS);
+                        let (m, v) = mv.split_at_mut(floats);
                         for (((x, m), v), &c) in x.iter_mut().zip(m).zip(v).zip(&*coefficients) {
                             deferred_update(x, m, v, c, epsilon, decay);
                         }
                     }
                 }
                 if seen {
-                    adam_values(x, g, mv, P::FLOATS, rates, bias);
+                    let g = &grads[i * floats..(i + 1) * floats];
+                    adam_values(x, g, mv, floats, rates, bias);
+                }
+            };
+            // The Gaussians a view reaches lie scattered over the table: their rows are
+            // prefetched a few seen rows ahead of the one being stepped, which otherwise
+            // waits on a cache miss per row.
+            let mut ahead = RowsAhead::default();
+            for (i, slot) in slots.iter().enumerate() {
+                let seen = reached.get(slot.0 as usize).is_some_and(|&r| r);
+                if !seen && !catch_up {
+                    continue;
+                }
+                prefetch_row(&values[i * floats..(i + 1) * floats]);
+                prefetch_row(&grads[i * floats..(i + 1) * floats]);
+                prefetch_row(&moments[2 * i * floats..2 * (i + 1) * floats]);
+                if let Some((row, seen)) = ahead.push(i, seen) {
+                    step_row(values, moments, row, seen);
                 }
             }
+            while let Some((row, seen)) = ahead.pop() {
+                step_row(values, moments, row, seen);
+            }
         });
+}
+
+/// How many rows [`adam_step`] prefetches ahead of the one it steps.
+const ROWS_AHEAD: usize = 8;
+
+/// The rows found to step but not yet stepped, oldest first (a ring of [`ROWS_AHEAD`]).
+#[derive(Default)]
+struct RowsAhead {
+    rows: [(usize, bool); ROWS_AHEAD],
+    first: usize,
+    len: usize,
+}
+
+impl RowsAhead {
+    /// Queues `row`; once the ring is full, returns the oldest row to step now.
+    fn push(&mut self, row: usize, seen: bool) -> Option<(usize, bool)> {
+        let out = (self.len == ROWS_AHEAD).then(|| self.pop()).flatten();
+        self.rows[(self.first + self.len) % ROWS_AHEAD] = (row, seen);
+        self.len += 1;
+        out
+    }
+
+    /// The oldest queued row, if any.
+    fn pop(&mut self) -> Option<(usize, bool)> {
+        (self.len > 0).then(|| {
+            let row = self.rows[self.first];
+            self.first = (self.first + 1) % ROWS_AHEAD;
+            self.len -= 1;
+            row
+        })
+    }
+}
+
+/// Asks the CPU to bring every cache line of `row` in ahead of its use.
+#[inline(always)]
+fn prefetch_row(row: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    for line in row.chunks(16) {
+        // SAFETY: a prefetch never faults and the pointer is in bounds.
+        unsafe {
+            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                line.as_ptr().cast(),
+            )
+        };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = row;
 }
 
 /// The most values a parameter group holds per Gaussian (the higher SH bands: 45).
