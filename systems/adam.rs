@@ -13,6 +13,7 @@ use crate::model::exposure::Exposure;
 use crate::model::sh::{SH_COEFFS, coeff_count};
 use crate::resources::{CameraExposures, Settings, SplatBuffers, TrainState};
 use crate::scene::LearningRates;
+use crate::systems::prefetch::{RowsAhead, prefetch};
 
 pub use crate::model::adam::{BETA1, BETA2, EPSILON};
 use crate::model::adam::{BiasCorrection, DeferredSums, adam_update, deferred_update};
@@ -245,9 +246,9 @@ pub fn adam_step<P: ParamGroup>(
                 if !seen && !catch_up {
                     continue;
                 }
-                prefetch_row(&values[i * floats..(i + 1) * floats]);
-                prefetch_row(&grads[i * floats..(i + 1) * floats]);
-                prefetch_row(&moments[2 * i * floats..2 * (i + 1) * floats]);
+                prefetch(&values[i * floats..(i + 1) * floats]);
+                prefetch(&grads[i * floats..(i + 1) * floats]);
+                prefetch(&moments[2 * i * floats..2 * (i + 1) * floats]);
                 if let Some((row, seen)) = ahead.push(i, seen) {
                     step_row(values, moments, row, seen);
                 }
@@ -256,53 +257,6 @@ pub fn adam_step<P: ParamGroup>(
                 step_row(values, moments, row, seen);
             }
         });
-}
-
-/// How many rows [`adam_step`] prefetches ahead of the one it steps.
-const ROWS_AHEAD: usize = 8;
-
-/// The rows found to step but not yet stepped, oldest first (a ring of [`ROWS_AHEAD`]).
-#[derive(Default)]
-struct RowsAhead {
-    rows: [(usize, bool); ROWS_AHEAD],
-    first: usize,
-    len: usize,
-}
-
-impl RowsAhead {
-    /// Queues `row`; once the ring is full, returns the oldest row to step now.
-    fn push(&mut self, row: usize, seen: bool) -> Option<(usize, bool)> {
-        let out = (self.len == ROWS_AHEAD).then(|| self.pop()).flatten();
-        self.rows[(self.first + self.len) % ROWS_AHEAD] = (row, seen);
-        self.len += 1;
-        out
-    }
-
-    /// The oldest queued row, if any.
-    fn pop(&mut self) -> Option<(usize, bool)> {
-        (self.len > 0).then(|| {
-            let row = self.rows[self.first];
-            self.first = (self.first + 1) % ROWS_AHEAD;
-            self.len -= 1;
-            row
-        })
-    }
-}
-
-/// Asks the CPU to bring every cache line of `row` in ahead of its use.
-#[inline(always)]
-fn prefetch_row(row: &[f32]) {
-    #[cfg(target_arch = "x86_64")]
-    for line in row.chunks(16) {
-        // SAFETY: a prefetch never faults and the pointer is in bounds.
-        unsafe {
-            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                line.as_ptr().cast(),
-            )
-        };
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = row;
 }
 
 /// The most values a parameter group holds per Gaussian (the higher SH bands: 45).

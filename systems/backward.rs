@@ -6,20 +6,22 @@ use rayon::prelude::*;
 
 use crate::components::{
     Color, ColorRest, Deformed, Fourier, Grad, Opacity, Position, Rotation, Scale, SplatSlot,
-    Temporal, sh_coefficients, split_sh,
+    Temporal, TimeWindow, WarpedTime, sh_coefficients, split_sh,
 };
 use crate::gpu::GpuRasterizer;
 use crate::model::deform::{
-    centre_gradient, fourier_offset_backward, polynomial_dtw_backward, rotation_at_backward,
-    scale_at_backward, scale_velocity, temporal_opacity_backward, temporal_opacity_dtw_backward,
-    window_factor,
+    MotionBasis, TemporalOpacity, centre_gradient, fourier_offset_backward,
+    polynomial_dtw_backward, rotation_at_backward, scale_at_backward, scale_velocity,
+    temporal_opacity_backward, temporal_opacity_dtw_backward, window_factor,
 };
 use crate::model::project::project_backward;
 use crate::model::sh::sh_to_rgb_backward;
+use crate::model::warp::TimeWarp;
 use crate::raster::SplatGrad;
 use crate::resources::{DeformedGrad, LossImage, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::systems::deform::DeformInputs;
 use crate::systems::densify::ndc_gradient_norm;
+use crate::systems::prefetch::{RowsAhead, prefetch};
 
 /// Back-propagates the image gradient through blending and projection to each slot's deformed
 /// Gaussian, and records the NDC-space 2D mean gradient norm used by densification. Blending
@@ -96,6 +98,11 @@ pub type ParamGrads<'a> = (
 );
 
 /// Chains each deformed Gaussian's gradient through the deformation model to its parameters.
+///
+/// Most Gaussians of a real capture get no gradient from a view (not drawn, or only behind
+/// opaque pixels): their gradients are zeroed in one pass over the table, and the few that
+/// get one, scattered over it, are worked on a few rows behind the scan, which prefetches
+/// their rows ([`RowsAhead`]).
 pub fn backward_parameters(
     settings: Res<Settings>,
     state: Res<TrainState>,
@@ -103,18 +110,22 @@ pub fn backward_parameters(
     buffers: Res<SplatBuffers>,
     mut gaussians: Query<(DeformInputs, &Deformed, &SplatSlot, ParamGrads)>,
 ) {
-    let motion = settings.motion_basis();
-    let opacity_model = settings.opacity;
-    let scale_motion = settings.model.scale_motion;
-    let learn_centres = settings.train.lr.temporal_center > 0.0;
-    let warp = settings.warp;
-    let sh_degree = state.sh_degree;
-    let eye = sample.camera.center();
+    let chain = ChainRule {
+        motion: settings.motion_basis(),
+        opacity_model: settings.opacity,
+        scale_motion: settings.model.scale_motion,
+        learn_centres: settings.train.lr.temporal_center > 0.0,
+        warp: settings.warp,
+        sh_degree: state.sh_degree,
+        eye: sample.camera.center(),
+        time: sample.time,
+    };
+    let deformed_grads = &buffers.deformed_grads;
     gaussians
-        .par_iter_mut()
-        .for_each(|(inputs, deformed, slot, grads)| {
-            let ((_, fourier, temporal, opacity, rotation, scale, color, rest), warped, window) =
-                inputs;
+        .contiguous_par_iter_mut()
+        .expect("Gaussian components are stored in tables, so the query is dense")
+        .for_each(|(inputs, deformed, slots, grads)| {
+            let (params, warped, windows) = inputs;
             let (
                 mut g_pos,
                 mut g_fourier,
@@ -123,91 +134,189 @@ pub fn backward_parameters(
                 mut g_rotation,
                 mut g_scale,
                 mut g_color,
-                g_rest,
+                mut g_rest,
             ) = grads;
-            let d = buffers.deformed_grads[slot.0 as usize];
-            if d == DeformedGrad::default() {
-                // Not drawn, or drawn only behind opaque pixels (most Gaussians of a dense
-                // scene): no gradient reaches its parameters, so the chain rule is skipped.
-                *g_pos = Grad::default();
-                *g_fourier = Grad::default();
-                *g_temporal = Grad::default();
-                *g_opacity = Grad::default();
-                *g_rotation = Grad::default();
-                *g_scale = Grad::default();
-                *g_color = Grad::default();
-                if let Some(mut g_rest) = g_rest {
-                    *g_rest = Grad::default();
+            let mut out = RowGrads {
+                position: &mut g_pos[..],
+                fourier: &mut g_fourier[..],
+                temporal: &mut g_temporal[..],
+                opacity: &mut g_opacity[..],
+                rotation: &mut g_rotation[..],
+                scale: &mut g_scale[..],
+                color: &mut g_color[..],
+                rest: g_rest.as_mut().map(|g| &mut g[..]),
+            };
+            let mut ahead = RowsAhead::<DeformedGrad>::default();
+            for (i, slot) in slots.iter().enumerate() {
+                let d = deformed_grads[slot.0 as usize];
+                if d == DeformedGrad::default() {
+                    out.zero(i);
+                    continue;
                 }
-                return;
+                let (pos, fourier, temporal, opacity, rotation, scale, color, rest) = params;
+                prefetch(&fourier[i..=i]);
+                prefetch(&rotation[i..=i]);
+                prefetch(&scale[i..=i]);
+                prefetch(&pos[i..=i]);
+                prefetch(&temporal[i..=i]);
+                prefetch(&opacity[i..=i]);
+                prefetch(&color[i..=i]);
+                if let Some(rest) = rest {
+                    prefetch(&rest[i..=i]);
+                }
+                prefetch(&deformed[i..=i]);
+                prefetch(&warped[i..=i]);
+                out.prefetch(i);
+                if let Some((row, d)) = ahead.push(i, d) {
+                    chain.row(params, warped, windows, deformed, row, d, &mut out);
+                }
             }
-            let dtw = warped.dtw;
-            // A time window scales σ(t) by a factor of time alone: dL/dσ scales alike.
-            let d_sigma = d.opacity * window.map_or(1.0, |w| window_factor(w, sample.time));
-
-            let (d_sh, d_dir) = sh_to_rgb_backward(
-                sh_degree,
-                &sh_coefficients(color, rest),
-                deformed.mean() - eye,
-                d.color,
-            );
-            let d_mean = d.mean + d_dir;
-            let f = fourier_offset_backward(
-                &fourier.cos,
-                &fourier.sin,
-                &fourier.phase,
-                motion,
-                dtw,
-                d_mean,
-            );
-            let (d_c0, d_c1) = rotation_at_backward(rotation.c0, rotation.c1, dtw, d.rotation);
-            let scale_velocity = scale_velocity(scale.d1, scale_motion);
-            let (d_d0, mut d_d1) = scale_at_backward(scale.d0, scale_velocity, dtw, d.scale);
-            if !scale_motion {
-                d_d1 = [0.0; 3];
-            }
-            let (d_logit, d_raw) = temporal_opacity_backward(
-                opacity_model,
-                opacity.logit,
-                temporal.scale,
-                dtw,
-                d_sigma,
-            );
-
-            g_pos.0 = Position {
-                mean: d_mean.to_array(),
-            };
-            g_fourier.0 = Fourier {
-                cos: f.cos,
-                sin: f.sin,
-                phase: f.phase,
-            };
-            // The centre's gradient only where it is learnt: as a constant it has none.
-            let center = if learn_centres {
-                let d_dtw = f.dtw
-                    + polynomial_dtw_backward(d_c0, rotation.c1, d_d0, scale_velocity)
-                    + temporal_opacity_dtw_backward(
-                        opacity_model,
-                        opacity.logit,
-                        temporal.scale,
-                        dtw,
-                        d_sigma,
-                    );
-                centre_gradient(d_dtw, &warp, temporal.center, warped.dt)
-            } else {
-                0.0
-            };
-            g_temporal.0 = Temporal {
-                center,
-                scale: d_raw,
-            };
-            g_opacity.0 = Opacity { logit: d_logit };
-            g_rotation.0 = Rotation { c0: d_c0, c1: d_c1 };
-            g_scale.0 = Scale { d0: d_d0, d1: d_d1 };
-            let (d_dc, d_rest) = split_sh(&d_sh);
-            g_color.0 = d_dc;
-            if let Some(mut g_rest) = g_rest {
-                g_rest.0 = d_rest;
+            while let Some((row, d)) = ahead.pop() {
+                chain.row(params, warped, windows, deformed, row, d, &mut out);
             }
         });
+}
+
+/// The gradient columns of one table chunk, as [`backward_parameters`] writes them.
+struct RowGrads<'a> {
+    position: &'a mut [Grad<Position>],
+    fourier: &'a mut [Grad<Fourier>],
+    temporal: &'a mut [Grad<Temporal>],
+    opacity: &'a mut [Grad<Opacity>],
+    rotation: &'a mut [Grad<Rotation>],
+    scale: &'a mut [Grad<Scale>],
+    color: &'a mut [Grad<Color>],
+    rest: Option<&'a mut [Grad<ColorRest>]>,
+}
+
+impl RowGrads<'_> {
+    /// No gradient reached row `i`'s parameters.
+    fn zero(&mut self, i: usize) {
+        self.position[i] = Grad::default();
+        self.fourier[i] = Grad::default();
+        self.temporal[i] = Grad::default();
+        self.opacity[i] = Grad::default();
+        self.rotation[i] = Grad::default();
+        self.scale[i] = Grad::default();
+        self.color[i] = Grad::default();
+        if let Some(rest) = self.rest.as_deref_mut() {
+            rest[i] = Grad::default();
+        }
+    }
+
+    fn prefetch(&self, i: usize) {
+        prefetch(&self.position[i..=i]);
+        prefetch(&self.fourier[i..=i]);
+        prefetch(&self.temporal[i..=i]);
+        prefetch(&self.opacity[i..=i]);
+        prefetch(&self.rotation[i..=i]);
+        prefetch(&self.scale[i..=i]);
+        prefetch(&self.color[i..=i]);
+        if let Some(rest) = self.rest.as_deref() {
+            prefetch(&rest[i..=i]);
+        }
+    }
+}
+
+/// What the chain rule of [`backward_parameters`] needs besides each Gaussian's own data.
+struct ChainRule {
+    motion: MotionBasis,
+    opacity_model: TemporalOpacity,
+    scale_motion: bool,
+    learn_centres: bool,
+    warp: TimeWarp,
+    sh_degree: u32,
+    eye: Vec3,
+    time: f32,
+}
+
+/// One table chunk's parameter columns, as the contiguous query gives them.
+type ParamColumns<'a> = (
+    &'a [Position],
+    &'a [Fourier],
+    &'a [Temporal],
+    &'a [Opacity],
+    &'a [Rotation],
+    &'a [Scale],
+    &'a [Color],
+    Option<&'a [ColorRest]>,
+);
+
+impl ChainRule {
+    /// Chains deformed-Gaussian gradient `d` of row `i` through the deformation model into
+    /// that row of `out`.
+    #[allow(clippy::too_many_arguments)]
+    fn row(
+        &self,
+        params: ParamColumns,
+        warped: &[WarpedTime],
+        windows: Option<&[TimeWindow]>,
+        deformed: &[Deformed],
+        i: usize,
+        d: DeformedGrad,
+        out: &mut RowGrads,
+    ) {
+        let (_, fourier, temporal, opacity, rotation, scale, color, rest) = params;
+        let (fourier, temporal, opacity) = (&fourier[i], &temporal[i], &opacity[i]);
+        let (rotation, scale) = (&rotation[i], &scale[i]);
+        let (warped, window) = (&warped[i], windows.map(|w| &w[i]));
+        let dtw = warped.dtw;
+        // A time window scales σ(t) by a factor of time alone: dL/dσ scales alike.
+        let d_sigma = d.opacity * window.map_or(1.0, |w| window_factor(w, self.time));
+
+        let (d_sh, d_dir) = sh_to_rgb_backward(
+            self.sh_degree,
+            &sh_coefficients(&color[i], rest.map(|r| &r[i])),
+            deformed[i].mean() - self.eye,
+            d.color,
+        );
+        let d_mean = d.mean + d_dir;
+        let f = fourier_offset_backward(
+            &fourier.cos,
+            &fourier.sin,
+            &fourier.phase,
+            self.motion,
+            dtw,
+            d_mean,
+        );
+        let (d_c0, d_c1) = rotation_at_backward(rotation.c0, rotation.c1, dtw, d.rotation);
+        let scale_velocity = scale_velocity(scale.d1, self.scale_motion);
+        let (d_d0, mut d_d1) = scale_at_backward(scale.d0, scale_velocity, dtw, d.scale);
+        if !self.scale_motion {
+            d_d1 = [0.0; 3];
+        }
+        let model = self.opacity_model;
+        let (d_logit, d_raw) =
+            temporal_opacity_backward(model, opacity.logit, temporal.scale, dtw, d_sigma);
+
+        out.position[i].0 = Position {
+            mean: d_mean.to_array(),
+        };
+        out.fourier[i].0 = Fourier {
+            cos: f.cos,
+            sin: f.sin,
+            phase: f.phase,
+        };
+        // The centre's gradient only where it is learnt: as a constant it has none.
+        let center = if self.learn_centres {
+            let d_dtw = f.dtw
+                + polynomial_dtw_backward(d_c0, rotation.c1, d_d0, scale_velocity)
+                + temporal_opacity_dtw_backward(model, opacity.logit, temporal.scale, dtw, d_sigma);
+            centre_gradient(d_dtw, &self.warp, temporal.center, warped.dt)
+        } else {
+            0.0
+        };
+        out.temporal[i].0 = Temporal {
+            center,
+            scale: d_raw,
+        };
+        out.opacity[i].0 = Opacity { logit: d_logit };
+        out.rotation[i].0 = Rotation { c0: d_c0, c1: d_c1 };
+        out.scale[i].0 = Scale { d0: d_d0, d1: d_d1 };
+        let (d_dc, d_rest) = split_sh(&d_sh);
+        out.color[i].0 = d_dc;
+        if let Some(rest) = out.rest.as_deref_mut() {
+            rest[i].0 = d_rest;
+        }
+    }
 }

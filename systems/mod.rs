@@ -22,6 +22,7 @@ pub mod densify;
 pub mod describe;
 pub mod guard;
 pub mod loss;
+pub mod prefetch;
 pub mod resident;
 pub mod sample_view;
 pub mod smoothness;

@@ -26,7 +26,9 @@ use tadgs::data::Camera;
 use tadgs::gpu::{DeformSettings, GpuDeformer, ParamGradients, ParamSlices};
 use tadgs::model::{TemporalOpacity, sh_to_rgb};
 use tadgs::raster::Splat;
-use tadgs::resources::{LossImage, Settings, SplatBuffers, TrainState, ViewSample};
+use tadgs::resources::{
+    DeformEveryGaussian, LossImage, Settings, SplatBuffers, TrainState, ViewSample,
+};
 use tadgs::scene::{DataSource, PhaseModel, SceneConfig};
 use tadgs::systems::backward::{backward_parameters, backward_splats};
 use tadgs::systems::deform::deform;
@@ -281,6 +283,8 @@ fn run_cpu(
     }
     world.resource_mut::<TrainState>().sh_degree = case.sh_degree;
     world.resource_mut::<ViewSample>().camera = camera;
+    // The GPU kernel evaluates every Gaussian, faded ones included: so does the CPU stage here.
+    world.insert_resource(DeformEveryGaussian);
     let pixels = (camera.width * camera.height) as usize;
     world.insert_resource(LossImage {
         d_color: (0..pixels).map(|_| uniform(rng, -1.0, 1.0)).collect(),
