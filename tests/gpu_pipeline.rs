@@ -27,11 +27,14 @@
 mod demo;
 #[path = "common/gpu.rs"]
 mod gpu;
+#[path = "common/rows.rs"]
+mod rows;
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use bevy_ecs::prelude::*;
+use rows::in_entity_order;
 use tadgs::components::*;
 use tadgs::data::Dataset;
 use tadgs::gpu::{DeformSettings, GpuContext, GpuTraining, ResidentState};
@@ -91,17 +94,6 @@ fn groups(world: &mut World) -> Vec<(&'static str, [Vec<f32>; 3])> {
     ]
 }
 
-/// Component `C` of every Gaussian, in entity order.
-fn sorted<C: Component + Copy>(world: &mut World) -> Vec<C> {
-    let mut rows: Vec<(Entity, C)> = world
-        .query::<(Entity, &C)>()
-        .iter(world)
-        .map(|(e, c)| (e, *c))
-        .collect();
-    rows.sort_by_key(|r| r.0);
-    rows.into_iter().map(|r| r.1).collect()
-}
-
 /// Largest error of `gpu` against `cpu` as a fraction of `rel · |cpu| + rel · max |cpu|`.
 fn worst_ratio(name: &str, cpu: &[f32], gpu: &[f32], rel: f32) -> f32 {
     assert_eq!(cpu.len(), gpu.len(), "{name}: lengths");
@@ -121,7 +113,7 @@ fn worst_ratio(name: &str, cpu: &[f32], gpu: &[f32], rel: f32) -> f32 {
 fn compare_synced_components(cpu: &mut World, gpu: &mut World) -> f32 {
     fn pair<P: Param>(cpu: &mut World, gpu: &mut World) -> (String, Vec<f32>, Vec<f32>) {
         let values = |world: &mut World| -> Vec<f32> {
-            let grads: Vec<Grad<P>> = sorted(world);
+            let grads: Vec<Grad<P>> = in_entity_order(world);
             grads.iter().flat_map(|g| g.0.values().to_vec()).collect()
         };
         (format!("Grad<{}>", P::NAME), values(cpu), values(gpu))
@@ -147,9 +139,9 @@ fn compare_synced_components(cpu: &mut World, gpu: &mut World) -> f32 {
     // Deformed values agree to f32 rounding of the same formulas (tests/gpu_deform.rs): the
     // opacity of every Gaussian, the rest where the CPU drew it (its deformation stage leaves
     // the geometry of Gaussians too faded to draw at `Deformed::faded`).
-    let (c, g): (Vec<Deformed>, Vec<Deformed>) = sorted::<Deformed>(cpu)
+    let (c, g): (Vec<Deformed>, Vec<Deformed>) = in_entity_order::<Deformed>(cpu)
         .into_iter()
-        .zip(sorted::<Deformed>(gpu))
+        .zip(in_entity_order::<Deformed>(gpu))
         .map(|(c, g)| {
             if c == Deformed::faded(c.opacity) {
                 (c, Deformed::faded(g.opacity))
@@ -163,7 +155,7 @@ fn compare_synced_components(cpu: &mut World, gpu: &mut World) -> f32 {
 }
 
 fn stats(world: &mut World) -> Vec<GradAccum> {
-    sorted(world)
+    in_entity_order(world)
 }
 
 /// Largest |a − b| over the two renders of the last iteration.

@@ -3,11 +3,14 @@
 
 #[path = "common/demo.rs"]
 mod demo;
+#[path = "common/rows.rs"]
+mod rows;
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
+use rows::in_entity_order;
 use tadgs::components::*;
 use tadgs::data::Dataset;
 use tadgs::data::synthetic::demo_scene;
@@ -627,25 +630,16 @@ fn faded_gaussians_are_not_evaluated_and_change_nothing() {
     };
     let (mut skipping, mut evaluating) = (world_with(false), world_with(true));
 
-    fn rows<C: Component + Copy>(world: &mut World) -> Vec<C> {
-        let mut rows: Vec<(Entity, C)> = world
-            .query::<(Entity, &C)>()
-            .iter(world)
-            .map(|(e, c)| (e, *c))
-            .collect();
-        rows.sort_by_key(|r| r.0);
-        rows.into_iter().map(|r| r.1).collect()
-    }
     fn bits<P: Param>(world: &mut World) -> Vec<u32> {
-        let grads = rows::<Grad<P>>(world);
+        let grads = in_entity_order::<Grad<P>>(world);
         grads
             .iter()
             .flat_map(|g| g.0.values().iter().map(|v| v.to_bits()).collect::<Vec<_>>())
             .collect()
     }
     let (skipped, evaluated) = (
-        rows::<Deformed>(&mut skipping),
-        rows::<Deformed>(&mut evaluating),
+        in_entity_order::<Deformed>(&mut skipping),
+        in_entity_order::<Deformed>(&mut evaluating),
     );
     let faded = skipped
         .iter()
@@ -684,8 +678,8 @@ fn faded_gaussians_are_not_evaluated_and_change_nothing() {
     }
     same_grads!(Position, Fourier, Temporal, Opacity, Rotation, Scale, Color);
     assert_eq!(
-        rows::<GradAccum>(&mut skipping),
-        rows::<GradAccum>(&mut evaluating),
+        in_entity_order::<GradAccum>(&mut skipping),
+        in_entity_order::<GradAccum>(&mut evaluating),
         "statistics"
     );
 }
