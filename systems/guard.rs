@@ -24,6 +24,10 @@ pub fn check_loss(state: Res<TrainState>, mut fault: ResMut<NumericFault>) {
 
 /// Records a [`NumericFault`] naming the first Gaussian whose gradient of group `P` is NaN or
 /// infinite, unless a fault is already recorded.
+///
+/// Every gradient value is read each iteration (30 M at 300 000 Gaussians of SH degree 3), so
+/// the columns are checked as whole slices, a reduction the compiler vectorises; the Gaussian
+/// is looked for only in a column that holds a bad value.
 pub fn check_gradient<P: Param>(
     state: Res<TrainState>,
     mut fault: ResMut<NumericFault>,
@@ -32,16 +36,36 @@ pub fn check_gradient<P: Param>(
     if fault.0.is_some() {
         return;
     }
-    let first = grads
-        .iter()
-        .position(|g| !g.0.values().iter().all(|v| v.is_finite()));
-    if let Some(gaussian) = first {
-        fault.0 = Some(Fault {
-            iteration: state.iteration,
-            group: P::NAME,
-            gaussian: Some(gaussian),
-        });
+    let mut first_row = 0;
+    let columns = grads
+        .contiguous_iter()
+        .expect("gradient components are stored in tables, so the query is dense");
+    for column in columns {
+        let values: &[f32] = bytemuck::cast_slice(column);
+        if !all_finite(values) {
+            let row = values
+                .chunks_exact(P::FLOATS)
+                .position(|g| !all_finite(g))
+                .expect("a column with a bad value has a row with one");
+            fault.0 = Some(Fault {
+                iteration: state.iteration,
+                group: P::NAME,
+                gaussian: Some(first_row + row),
+            });
+            return;
+        }
+        first_row += column.len();
     }
+}
+
+/// Whether no value is NaN or infinite: the largest magnitude's bits, as an integer maximum
+/// over the slice, stay below those of infinity.
+fn all_finite(values: &[f32]) -> bool {
+    const INFINITY_BITS: u32 = 0x7f80_0000;
+    let largest = values
+        .iter()
+        .fold(0u32, |largest, v| largest.max(v.to_bits() & 0x7fff_ffff));
+    largest < INFINITY_BITS
 }
 
 /// The systems of the guard, for ordering your own systems before or after it.
@@ -63,4 +87,33 @@ pub fn check_gradients() -> ScheduleConfigs<ScheduleSystem> {
 /// Run condition: no numeric fault has been recorded.
 pub fn healthy(fault: Res<NumericFault>) -> bool {
     fault.0.is_none()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::all_finite;
+
+    /// Finite values of any sign and size pass; one NaN or infinity anywhere fails.
+    #[test]
+    fn all_finite_finds_any_nan_or_infinity() {
+        let finite = [
+            0.0,
+            -0.0,
+            1.0,
+            -f32::MAX,
+            f32::MAX,
+            f32::MIN_POSITIVE,
+            1e-45,
+            -3.5,
+        ];
+        assert!(all_finite(&finite));
+        assert!(all_finite(&[]));
+        for bad in [f32::NAN, -f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            for at in 0..finite.len() {
+                let mut values = finite.to_vec();
+                values.insert(at, bad);
+                assert!(!all_finite(&values), "{bad} at {at}");
+            }
+        }
+    }
 }
