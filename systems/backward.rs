@@ -153,17 +153,7 @@ pub fn backward_parameters(
                     out.zero(i);
                     continue;
                 }
-                let (pos, fourier, temporal, opacity, rotation, scale, color, rest) = params;
-                prefetch(&fourier[i..=i]);
-                prefetch(&rotation[i..=i]);
-                prefetch(&scale[i..=i]);
-                prefetch(&pos[i..=i]);
-                prefetch(&temporal[i..=i]);
-                prefetch(&opacity[i..=i]);
-                prefetch(&color[i..=i]);
-                if let Some(rest) = rest {
-                    prefetch(&rest[i..=i]);
-                }
+                prefetch_parameters(params, i);
                 prefetch(&deformed[i..=i]);
                 prefetch(&warped[i..=i]);
                 out.prefetch(i);
@@ -241,6 +231,21 @@ type ParamColumns<'a> = (
     &'a [Color],
     Option<&'a [ColorRest]>,
 );
+
+/// Requests row `i` of every parameter column.
+fn prefetch_parameters(params: ParamColumns, i: usize) {
+    let (position, fourier, temporal, opacity, rotation, scale, color, rest) = params;
+    prefetch(&position[i..=i]);
+    prefetch(&fourier[i..=i]);
+    prefetch(&temporal[i..=i]);
+    prefetch(&opacity[i..=i]);
+    prefetch(&rotation[i..=i]);
+    prefetch(&scale[i..=i]);
+    prefetch(&color[i..=i]);
+    if let Some(rest) = rest {
+        prefetch(&rest[i..=i]);
+    }
+}
 
 impl ChainRule {
     /// Chains deformed-Gaussian gradient `d` of row `i` through the deformation model into

@@ -11,6 +11,7 @@ use crate::model::project::drawable;
 use crate::model::sh::sh_to_rgb;
 use crate::resources::{DeformEveryGaussian, Settings, TrainState, ViewSample};
 use crate::systems::densify::counts_faded_views;
+use crate::systems::smoothness::smoothness_enabled;
 
 /// The components the deformation reads: the parameters, the warped time and, in merged
 /// segment models, the time window.
@@ -20,9 +21,7 @@ pub type DeformInputs<'a> = (ParamRefs<'a>, &'a WarpedTime, Option<&'a TimeWindo
 /// count of the views whose frustum holds a Gaussian, the motion-smoothness graph over the
 /// deformed means, or a system of the user's ([`DeformEveryGaussian`]).
 pub fn faded_geometry_read(settings: &Settings, every_gaussian: bool) -> bool {
-    every_gaussian
-        || counts_faded_views(&settings.densify)
-        || settings.train.motion_smoothness.weight > 0.0
+    every_gaussian || counts_faded_views(&settings.densify) || smoothness_enabled(settings)
 }
 
 /// Evaluates every Gaussian at the sampled time into its [`Deformed`] component. A Gaussian

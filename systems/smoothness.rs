@@ -26,9 +26,14 @@ pub struct SmoothnessBuffers {
     d_velocities: Vec<Vec3>,
 }
 
-/// Run condition: the regulariser has a weight.
-pub fn smoothing(settings: Res<Settings>) -> bool {
+/// Whether the regulariser has a weight.
+pub fn smoothness_enabled(settings: &Settings) -> bool {
     settings.train.motion_smoothness.weight > 0.0
+}
+
+/// Run condition: [`smoothness_enabled`].
+pub fn smoothing(settings: Res<Settings>) -> bool {
+    smoothness_enabled(&settings)
 }
 
 /// Adds the regulariser's gradient to each [`Grad<Fourier>`], rebuilding the k-nearest graph

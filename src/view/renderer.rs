@@ -16,7 +16,7 @@ use crate::gpu::GpuError;
 use crate::io::camera_path::CameraSpec;
 use crate::io::image::Image;
 use crate::io::model::Model;
-use crate::model::project::MIN_OPACITY;
+use crate::model::project::drawable;
 use crate::resources::{Settings, SplatBuffers, TrainState, ViewSample};
 use crate::scene::SceneConfig;
 use crate::systems::render_schedule;
@@ -233,7 +233,7 @@ impl Renderer {
             buffers
                 .deformed
                 .iter()
-                .filter(|d| d.opacity >= MIN_OPACITY)
+                .filter(|d| drawable(d.opacity))
                 .count()
         });
         let drawn = (counted && buffers.splats.len() == self.total)
