@@ -2,8 +2,8 @@
 //! (motion, opacity, rotation, scale), spherical-harmonics colour and EWA projection, each
 //! with a hand-written backward pass checked against finite differences; and the per-camera
 //! exposure compensation applied to a whole render before the loss ([`exposure`]); Adam's
-//! update rule ([`adam`]); and the motion-smoothness regulariser over a neighbour graph
-//! ([`smoothness`]).
+//! update rule ([`adam`]); the motion-smoothness regulariser over a neighbour graph
+//! ([`smoothness`]); and the motion bases shared by every Gaussian ([`shared_motion`]).
 //!
 //! The per-Gaussian maths is allocation-free and works on one Gaussian at a time.
 
@@ -12,6 +12,7 @@ pub mod deform;
 pub mod exposure;
 pub mod project;
 pub mod sh;
+pub mod shared_motion;
 pub mod smoothness;
 pub mod warp;
 
