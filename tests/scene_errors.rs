@@ -399,6 +399,27 @@ fn validate_names_each_bad_field() {
             c.train.motion_smoothness.weight = 0.1;
             c.train.backend = tadgs::scene::BackendKind::Gpu;
         }),
+        ("model.shared_motion.bases", |c| {
+            c.model.shared_motion = Some(tadgs::scene::SharedMotionConfig { bases: 0, knots: 8 })
+        }),
+        ("model.shared_motion.bases", |c| {
+            c.model.shared_motion = Some(tadgs::scene::SharedMotionConfig {
+                bases: 17,
+                knots: 8,
+            })
+        }),
+        ("model.shared_motion.knots", |c| {
+            c.model.shared_motion = Some(tadgs::scene::SharedMotionConfig { bases: 8, knots: 1 })
+        }),
+        // The shared motion runs on the CPU backend only.
+        ("model.shared_motion", |c| {
+            c.model.shared_motion = Some(tadgs::scene::SharedMotionConfig { bases: 8, knots: 8 });
+            c.train.backend = tadgs::scene::BackendKind::Gpu;
+        }),
+        ("train.lr.motion_bases", |c| c.train.lr.motion_bases = -1e-4),
+        ("train.lr.motion_weights", |c| {
+            c.train.lr.motion_weights = f32::NAN
+        }),
     ];
     for (expected, edit) in cases {
         let mut c = minimal_config();
@@ -487,6 +508,19 @@ fn set_override_sets_nested_fields() {
     assert_eq!(c.densify.vad_min_opacity, Some(0.1));
     set_override(&mut c, "train.background.1", "0.5").unwrap();
     assert_eq!(c.train.background, [0.0, 0.5, 0.0]);
+    set_override(&mut c, "model.shared_motion", "Some((bases: 8, knots: 8))").unwrap();
+    set_override(&mut c, "model.shared_motion.knots", "12").unwrap();
+    assert_eq!(
+        c.model.shared_motion,
+        Some(tadgs::scene::SharedMotionConfig {
+            bases: 8,
+            knots: 12
+        })
+    );
+    set_override(&mut c, "model.shared_motion", "(bases: 2, knots: 3)").unwrap();
+    assert_eq!(c.model.shared_motion.map(|s| s.bases), Some(2));
+    set_override(&mut c, "model.shared_motion", "None").unwrap();
+    assert_eq!(c.model.shared_motion, None);
     set_override(
         &mut c,
         "model.tow",

@@ -31,6 +31,11 @@ use ron::extensions::Extensions;
 use super::field_error::{Check, FieldError, fail};
 use super::outline::{self, locate_field};
 use super::types::{BackendKind, CapPolicy, DataSource, SceneConfig, TatForm};
+use crate::model::shared_motion::MAX_MOTION_BASES;
+
+/// The most knots `model.shared_motion.knots` may have (far more than any sequence has frames
+/// to constrain them).
+pub const MAX_MOTION_KNOTS: u32 = 100_000;
 
 /// Everything that can go wrong while loading a scene file or applying an override.
 #[derive(Debug, thiserror::Error)]
@@ -239,7 +244,8 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 /// Checked: `train.iterations > 0`; `lambda_dssim` in [0, 1]; every learning rate finite
 /// and ≥ 0 (`sh_rest_divisor` > 0) with `position_final ≤ position`; background channels
 /// in [0, 1]; `near_plane > 0`; `model.sh_degree ≤ 3`; `model.motion_period > 0`;
-/// `tow.window_frames > 0`, `tow.rho` in (0, 1); `train.lr.temporal_center` 0 with the GPU
+/// `tow.window_frames > 0`, `tow.rho` in (0, 1); `model.shared_motion` with `bases` in 1..=16,
+/// `knots` in 2..=[`MAX_MOTION_KNOTS`] and the CPU backend; `train.lr.temporal_center` 0 with the GPU
 /// backend; `train.motion_smoothness.weight ≥ 0`, and above 0 only on the CPU backend with
 /// `neighbours` and `rebuild_interval` above 0;
 /// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
@@ -318,6 +324,8 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
         ("scale_velocity", lr.scale_velocity),
         ("sh_dc", lr.sh_dc),
         ("exposure", lr.exposure),
+        ("motion_bases", lr.motion_bases),
+        ("motion_weights", lr.motion_weights),
     ];
     // Adam moves a parameter by about its learning rate per step: above 1 (a whole unit of
     // logit, log-scale or colour, or 1 × the extent for positions, every iteration) training
@@ -401,6 +409,32 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
     positive("model.motion_period", m.motion_period)?;
     positive("model.tow.window_frames", m.tow.window_frames)?;
     in_range("model.tow.rho", m.tow.rho, 0.0, false, 1.0, false)?;
+    if let Some(shared) = m.shared_motion {
+        let most = MAX_MOTION_BASES as u32;
+        if !(1..=most).contains(&shared.bases) {
+            return fail(
+                "model.shared_motion.bases",
+                format!("{} is outside 1 to {most}", shared.bases),
+            );
+        }
+        if !(2..=MAX_MOTION_KNOTS).contains(&shared.knots) {
+            return fail(
+                "model.shared_motion.knots",
+                format!(
+                    "{} is outside 2 to {MAX_MOTION_KNOTS}: a piecewise-linear trajectory \
+                     needs a knot at each end of the sequence",
+                    shared.knots
+                ),
+            );
+        }
+        if t.backend == BackendKind::Gpu {
+            return fail(
+                "model.shared_motion",
+                "is set, but the shared motion bases run on the CPU backend only: use \
+                 `train.backend: Cpu` or `shared_motion: None`",
+            );
+        }
+    }
 
     // densify
     let d = &config.densify;

@@ -276,6 +276,25 @@ pub struct ModelConfig {
     pub scale_motion: bool,
     /// Temporal Offset Warping.
     pub tow: TowConfig,
+    /// Motion bases shared by every Gaussian, added to each one's Fourier motion (`None`, the
+    /// default: every Gaussian moves on its own, as in the paper). CPU backend only.
+    pub shared_motion: Option<SharedMotionConfig>,
+}
+
+/// Shared motion bases (`tadgs::model::shared_motion`): mean_i(t) = μ_i + Fourier_i(Δt') +
+/// Σ_{b<B} w_ib·u_b(t), with B trajectories u_b shared by every Gaussian, each piecewise linear
+/// in the view's normalised time over K knots spaced uniformly on [0, 1], and B weights per
+/// Gaussian. Not part of the paper; meant for monocular captures (D-NeRF), where trajectories
+/// learnt one per Gaussian can fit each training view alone. The bases start at zero, the
+/// weights at small random values (N(0, 0.1²)); learning rates `train.lr.motion_bases` and
+/// `train.lr.motion_weights`.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(deny_unknown_fields)]
+pub struct SharedMotionConfig {
+    /// B, the number of shared trajectories (1 to 16).
+    pub bases: u32,
+    /// K, the number of knots of each trajectory (at least 2), knot k at time k/(K − 1).
+    pub knots: u32,
 }
 
 impl Default for ModelConfig {
@@ -287,6 +306,7 @@ impl Default for ModelConfig {
             motion_period: 1.0,
             scale_motion: true,
             tow: TowConfig::default(),
+            shared_motion: None,
         }
     }
 }
@@ -503,6 +523,12 @@ pub struct LearningRates {
     pub sh_rest_divisor: f32,
     /// Per-camera exposure (log-gain and offset per channel, `train.camera_exposure`).
     pub exposure: f32,
+    /// Shared motion bases U (`model.shared_motion`), multiplied by the scene extent (the
+    /// bases are displacements in scene units) and decayed over the run in the same ratio as
+    /// the position rate (`position_final / position`).
+    pub motion_bases: f32,
+    /// Each Gaussian's weights of the shared motion bases (`model.shared_motion`).
+    pub motion_weights: f32,
 }
 
 impl Default for LearningRates {
@@ -522,16 +548,21 @@ impl Default for LearningRates {
             sh_dc: 2.5e-3,
             sh_rest_divisor: 20.0,
             exposure: 1e-3,
+            motion_bases: 1.6e-4,
+            motion_weights: 1e-2,
         }
     }
 }
 
 impl LearningRates {
     /// These rates with every time-dependent term's rate at 0: the motion (Fourier
-    /// coefficients and phases, rotation and log-scale linear terms) and the temporal opacity
-    /// (widths and centres). What the static warm-up trains with.
+    /// coefficients and phases, rotation and log-scale linear terms, shared motion bases and
+    /// weights) and the temporal opacity (widths and centres). What the static warm-up trains
+    /// with.
     pub fn frozen_in_time(&self) -> Self {
         Self {
+            motion_bases: 0.0,
+            motion_weights: 0.0,
             fourier_cos_sin: 0.0,
             fourier_phase: 0.0,
             temporal_scale: 0.0,
