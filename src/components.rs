@@ -12,6 +12,7 @@ use glam::Vec3;
 
 use crate::model::deform::FOURIER_TERMS;
 use crate::model::sh::SH_COEFFS;
+use crate::model::shared_motion::MAX_MOTION_BASES;
 
 /// Canonical mean μ.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -174,6 +175,28 @@ impl TimeWindow {
     };
 }
 
+/// A Gaussian's weights w_i of the shared motion bases (`model.shared_motion`): its mean moves
+/// by Σ_{b<B} w_ib·u_b(t) besides its own Fourier motion (see
+/// [`crate::model::shared_motion`]).
+///
+/// An optimised parameter with its [`Grad`] and [`Adam`], but not one of [`param_groups!`]:
+/// only the Gaussians of a model with shared motion carry it (a model without loads and
+/// trains as before), it is not GPU-resident, and the model file and checkpoint hold it as a
+/// tensor of their own (`motion_weights`). Densification carries it to clones and split
+/// children like every component.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+#[repr(C)]
+pub struct MotionWeights {
+    /// w_ib for b < B; the values past the model's B stay 0.
+    pub w: [f32; MAX_MOTION_BASES],
+}
+
+impl Param for MotionWeights {
+    const NAME: &'static str = "motion_weights";
+    /// Outside [`PARAM_GROUPS`], so outside the GPU-resident layout too.
+    const INDEX: usize = usize::MAX;
+}
+
 /// The warped temporal offset Δt' = W(t − t_i) at the current time.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 #[repr(C)]
@@ -230,11 +253,12 @@ pub struct SplatSlot(pub u32);
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct AdamClock(pub u32);
 
-/// An optimised parameter component: all-`f32` plain data, declared in [`param_groups!`].
+/// An optimised parameter component: all-`f32` plain data, declared in [`param_groups!`]
+/// (or the opt-in [`MotionWeights`], which is not).
 pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync + 'static {
     /// Group name: logs, NaN reports, and the tensor names of model files and checkpoints.
     const NAME: &'static str;
-    /// Position of the group in [`PARAM_GROUPS`].
+    /// Position of the group in [`PARAM_GROUPS`] (`usize::MAX` for a group outside it).
     const INDEX: usize;
     /// `f32` values per Gaussian.
     const FLOATS: usize = std::mem::size_of::<Self>() / std::mem::size_of::<f32>();

@@ -11,10 +11,12 @@ use crate::data::{Camera, Dataset};
 use crate::metrics::loss::{LossScratch, LossValue};
 use crate::model::deform::{MotionBasis, TemporalOpacity};
 use crate::model::exposure::Exposure;
+use crate::model::shared_motion::MotionBases;
 use crate::model::warp::TimeWarp;
 use crate::raster::{Rasterizer, RenderOutput, Splat, SplatGrad};
 use crate::scene::{
-    DensifyConfig, ModelConfig, OpacityModel, PhaseModel, SceneConfig, TrainConfig,
+    DensifyConfig, ModelConfig, OpacityModel, PhaseModel, SceneConfig, SharedMotionConfig,
+    TrainConfig,
 };
 
 /// Settings of a run, resolved from the scene file and the dataset.
@@ -281,6 +283,43 @@ pub struct LossImage {
     /// The render after the sampled camera's exposure correction, the image the loss compared
     /// (used only with [`CameraExposures`]).
     pub corrected: crate::io::image::Image,
+}
+
+/// The motion bases shared by every Gaussian (`model.shared_motion`, see
+/// [`crate::model::shared_motion`]) with their gradient and Adam moments. Inserted only when
+/// enabled (its presence switches the shared motion on in the deformation, backward and Adam
+/// stages); each Gaussian's weights are its [`crate::components::MotionWeights`].
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct SharedMotion {
+    /// The values U[b][k].
+    pub bases: MotionBases,
+    /// This iteration's dL/dU, laid out like [`MotionBases::values`].
+    pub grad: Vec<[f32; 3]>,
+    /// Adam's first moments, laid out like [`MotionBases::values`].
+    pub m: Vec<[f32; 3]>,
+    /// Adam's second moments.
+    pub v: Vec<[f32; 3]>,
+}
+
+impl SharedMotion {
+    /// `bases` with zero gradient and moments.
+    pub fn new(bases: MotionBases) -> Self {
+        let zeros = vec![[0.0; 3]; bases.values.len()];
+        Self {
+            bases,
+            grad: zeros.clone(),
+            m: zeros.clone(),
+            v: zeros,
+        }
+    }
+
+    /// Zero bases of the shape `config` asks for (the start of a run).
+    pub fn zeros(config: SharedMotionConfig) -> Self {
+        Self::new(MotionBases::zeros(
+            config.bases as usize,
+            config.knots as usize,
+        ))
+    }
 }
 
 /// Per-camera exposure compensation (`train.camera_exposure`), with each camera's Adam state.

@@ -118,7 +118,25 @@ pub fn insert_render_resources(
         world.insert_resource(gpu);
     }
     world.insert_resource(SplatBuffers::default());
+    if let Some(config) = scene.model.shared_motion {
+        // Zero bases; a model or checkpoint loaded into the world brings its own.
+        world.insert_resource(SharedMotion::zeros(config));
+    }
     Ok(())
+}
+
+/// With shared motion ([`SharedMotion`]), gives every Gaussian of `world` that lacks them its
+/// weights of the bases, drawn with the world's [`Rng`] (see
+/// [`crate::systems::densify::attach_motion_weights`]); nothing otherwise. The [`Trainer`]'s
+/// constructors call it once the Gaussians are spawned.
+pub fn attach_motion_weights_now(world: &mut World) {
+    use bevy_ecs::system::RunSystemOnce;
+    if world.contains_resource::<SharedMotion>() && world.contains_resource::<Rng>() {
+        world
+            .run_system_once(crate::systems::densify::attach_motion_weights)
+            .expect("the system's resources are in the world");
+        world.flush();
+    }
 }
 
 /// A checkpoint does not fit the data it is resumed on.
@@ -355,6 +373,7 @@ impl Trainer {
         insert_resources(&mut world, scene, dataset.clone())?;
         apply_memory_budget(&mut world, scene, &dataset)?;
         spawn_initial_gaussians(&mut world, scene)?;
+        attach_motion_weights_now(&mut world);
         Ok(Self::with_world(world))
     }
 
@@ -379,6 +398,7 @@ impl Trainer {
         insert_resources(&mut world, scene, dataset)?;
         model.spawn_into(&mut world);
         world.resource_mut::<TrainState>().sh_degree = model.sh_degree;
+        attach_motion_weights_now(&mut world);
         Ok(Self::with_world(world))
     }
 
@@ -412,6 +432,7 @@ impl Trainer {
         let mut world = World::new();
         insert_resources(&mut world, &checkpoint.state.scene, dataset)?;
         checkpoint.restore_into(&mut world);
+        attach_motion_weights_now(&mut world);
         Ok(Self::with_world(world))
     }
 

@@ -5,13 +5,14 @@ use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::{
-    Adam, AdamClock, Color, ColorRest, Fourier, Grad, Opacity, Param, Position, Rotation, Scale,
-    SplatSlot, Temporal, each_param,
+    Adam, AdamClock, Color, ColorRest, Fourier, Grad, MotionWeights, Opacity, Param, Position,
+    Rotation, Scale, SplatSlot, Temporal, each_param,
 };
 use crate::model::deform::FOURIER_TERMS;
 use crate::model::exposure::Exposure;
 use crate::model::sh::{SH_COEFFS, coeff_count};
-use crate::resources::{CameraExposures, Settings, SplatBuffers, TrainState};
+use crate::model::shared_motion::MAX_MOTION_BASES;
+use crate::resources::{CameraExposures, Settings, SharedMotion, SplatBuffers, TrainState};
 use crate::scene::LearningRates;
 use crate::systems::prefetch::{RowsAhead, prefetch};
 
@@ -104,11 +105,33 @@ impl ParamGroup for ColorRest {
     }
 }
 
+impl ParamGroup for MotionWeights {
+    fn learning_rates(lr: &LearningRates, _: f32) -> Self {
+        // The weights past the model's B never get a gradient, so their moments stay 0 and
+        // Adam leaves them at 0.
+        Self {
+            w: [lr.motion_weights; MAX_MOTION_BASES],
+        }
+    }
+}
+
 /// Position learning rate at `iteration`: exponential interpolation from `position` to
 /// `position_final` over the run, scaled by the scene extent.
 pub fn position_lr(lr: &LearningRates, iteration: u32, iterations: u32, extent: f32) -> f32 {
     let t = (iteration as f32 / iterations.max(1) as f32).clamp(0.0, 1.0);
     (lr.position.ln() * (1.0 - t) + lr.position_final.ln() * t).exp() * extent
+}
+
+/// Learning rate of the shared motion bases at `iteration`: `motion_bases` × the scene extent,
+/// decayed over the run in the same ratio as the position rate (`position_final / position`).
+pub fn motion_bases_lr(lr: &LearningRates, iteration: u32, iterations: u32, extent: f32) -> f32 {
+    let t = (iteration as f32 / iterations.max(1) as f32).clamp(0.0, 1.0);
+    let decay = if lr.position > 0.0 {
+        (lr.position_final / lr.position).powf(t)
+    } else {
+        1.0
+    };
+    lr.motion_bases * extent * decay
 }
 
 /// With `train.deferred_adam`, every Gaussian's skipped momentum steps are applied at
@@ -313,7 +336,7 @@ fn adam_values(
             }
         };
     }
-    fixed_widths!(1 3 6 8 28 45);
+    fixed_widths!(1 3 6 8 16 28 45);
     // Any other width, or a group whose last values are not stepped.
     let gaussians = values
         .chunks_exact_mut(floats)
@@ -393,7 +416,34 @@ pub fn adam_exposure(settings: Res<Settings>, exposures: Option<ResMut<CameraExp
     }
 }
 
-/// The Adam systems of every parameter group ([`crate::components::param_groups!`]).
+/// One Adam step on the shared motion bases ([`SharedMotion`], `model.shared_motion`), with
+/// the bias correction of the global step as the Gaussians' groups (the bases get a gradient
+/// every iteration a Gaussian with weights is seen) and [`motion_bases_lr`].
+pub fn adam_shared_motion(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    mut shared: ResMut<SharedMotion>,
+) {
+    let iteration = state.iteration;
+    let lr = motion_bases_lr(
+        &settings.train.rates_at(iteration),
+        iteration,
+        settings.train.iterations,
+        settings.extent,
+    );
+    let bias = BiasCorrection::after(iteration.max(1) as i32);
+    let shared = &mut *shared;
+    let values: &mut [f32] = bytemuck::cast_slice_mut(&mut shared.bases.values);
+    let grads: &[f32] = bytemuck::cast_slice(&shared.grad);
+    let m: &mut [f32] = bytemuck::cast_slice_mut(&mut shared.m);
+    let v: &mut [f32] = bytemuck::cast_slice_mut(&mut shared.v);
+    for (((x, g), m), v) in values.iter_mut().zip(grads).zip(m).zip(v) {
+        adam_update(x, *g, m, v, lr, bias);
+    }
+}
+
+/// The Adam systems of every parameter group ([`crate::components::param_groups!`]), and with
+/// shared motion ([`SharedMotion`]) those of the Gaussians' weights and of the bases.
 pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
     macro_rules! adam_steps {
         ($($group:ty,)*) => {
@@ -402,6 +452,9 @@ pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
     }
     (
         each_param!(adam_steps),
+        (adam_step::<MotionWeights>, adam_shared_motion)
+            .chain()
+            .run_if(resource_exists::<SharedMotion>),
         advance_adam_clocks.run_if(deferring),
     )
         .chain()
@@ -422,6 +475,7 @@ mod tests {
             (3, 3),
             (5, 5),
             (8, 8),
+            (16, 16),
             (28, 28),
             (45, 45),
             (45, 24),

@@ -5,8 +5,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::components::{
-    Color, ColorRest, Deformed, Fourier, Grad, Opacity, Position, Rotation, Scale, SplatSlot,
-    Temporal, TimeWindow, WarpedTime, sh_coefficients, split_sh,
+    Color, ColorRest, Deformed, Fourier, Grad, MotionWeights, Opacity, Position, Rotation, Scale,
+    SplatSlot, Temporal, TimeWindow, WarpedTime, sh_coefficients, split_sh,
 };
 use crate::gpu::GpuRasterizer;
 use crate::model::deform::{
@@ -16,9 +16,12 @@ use crate::model::deform::{
 };
 use crate::model::project::project_backward;
 use crate::model::sh::sh_to_rgb_backward;
+use crate::model::shared_motion::{MAX_MOTION_BASES, accumulate_bases_gradient, weights_gradient};
 use crate::model::warp::TimeWarp;
 use crate::raster::SplatGrad;
-use crate::resources::{DeformedGrad, LossImage, Settings, SplatBuffers, TrainState, ViewSample};
+use crate::resources::{
+    DeformedGrad, LossImage, Settings, SharedMotion, SplatBuffers, TrainState, ViewSample,
+};
 use crate::systems::deform::DeformInputs;
 use crate::systems::densify::ndc_gradient_norm;
 use crate::systems::prefetch::{RowsAhead, prefetch};
@@ -324,4 +327,66 @@ impl ChainRule {
             rest[i].0 = d_rest;
         }
     }
+}
+
+/// Rows of a table that [`backward_shared_motion`] sums in one task. The chunks are fixed and
+/// their sums added in order, so dL/dU is the same whatever the number of threads.
+pub const SHARED_MOTION_CHUNK: usize = 4096;
+
+/// The gradients of the shared motion (`model.shared_motion`, see
+/// [`crate::model::shared_motion`]): dL/dw_ib = g_i·u_b(t) into each Gaussian's
+/// `Grad<MotionWeights>`, and dL/dU = Σ_i w_ib·g_i spread over the two knots around the view's
+/// time into [`SharedMotion::grad`].
+///
+/// g_i = dL/d(mean_i(t)) is the position gradient [`backward_parameters`] has written: the
+/// shared motion adds to the mean as the canonical position does, so dL/dμ_i = g_i.
+pub fn backward_shared_motion(
+    sample: Res<ViewSample>,
+    mut shared: ResMut<SharedMotion>,
+    mut gaussians: Query<(&MotionWeights, &Grad<Position>, &mut Grad<MotionWeights>)>,
+) {
+    let shared = &mut *shared;
+    let at = shared.bases.evaluate(sample.time);
+    type Sums = [[f64; 3]; MAX_MOTION_BASES];
+    let mut sums: Sums = Default::default();
+    let tables = gaussians
+        .contiguous_iter_mut()
+        .expect("Gaussian components are stored in tables, so the query is dense");
+    for (weights, d_positions, mut d_weights) in tables {
+        let chunks: Vec<Sums> = weights
+            .par_chunks(SHARED_MOTION_CHUNK)
+            .zip(d_positions.par_chunks(SHARED_MOTION_CHUNK))
+            .zip(d_weights[..].par_chunks_mut(SHARED_MOTION_CHUNK))
+            .map(|((weights, d_positions), d_weights)| {
+                let mut sums: Sums = Default::default();
+                for ((w, g), d_w) in weights.iter().zip(d_positions).zip(d_weights) {
+                    let g = Vec3::from_array(g.0.mean);
+                    if g == Vec3::ZERO {
+                        // No gradient reached the Gaussian.
+                        *d_w = Grad::default();
+                        continue;
+                    }
+                    d_w.0.w = weights_gradient(&at, g);
+                    accumulate_bases_gradient(&w.w, g, &mut sums[..at.count]);
+                }
+                sums
+            })
+            .collect();
+        for chunk in chunks {
+            for (sum, part) in sums.iter_mut().zip(chunk) {
+                for (s, p) in sum.iter_mut().zip(part) {
+                    *s += p;
+                }
+            }
+        }
+    }
+    let d_bases: Vec<Vec3> = sums[..at.count]
+        .iter()
+        .map(|s| glam::DVec3::from_array(*s).as_vec3())
+        .collect();
+    shared.grad.clear();
+    shared.grad.resize(shared.bases.values.len(), [0.0; 3]);
+    shared
+        .bases
+        .evaluate_backward(at.span, &d_bases, &mut shared.grad);
 }

@@ -3,13 +3,16 @@
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 
-use crate::components::{Deformed, ParamRefs, TimeWindow, WarpedTime, sh_coefficients};
+use crate::components::{
+    Deformed, MotionWeights, ParamRefs, TimeWindow, WarpedTime, sh_coefficients,
+};
 use crate::model::deform::{
     fourier_offset, rotation_at, scale_at, scale_velocity, temporal_opacity, window_factor,
 };
 use crate::model::project::drawable;
 use crate::model::sh::sh_to_rgb;
-use crate::resources::{DeformEveryGaussian, Settings, TrainState, ViewSample};
+use crate::model::shared_motion::shared_offset;
+use crate::resources::{DeformEveryGaussian, Settings, SharedMotion, TrainState, ViewSample};
 use crate::systems::densify::counts_faded_views;
 use crate::systems::smoothness::smoothness_enabled;
 
@@ -28,12 +31,17 @@ pub fn faded_geometry_read(settings: &Settings, every_gaussian: bool) -> bool {
 /// whose σ(t) is below what the splatting stage draws gets [`Deformed::faded`] unless
 /// [`faded_geometry_read`]: on a real capture most Gaussians live a few frames, so at any
 /// time most of them are faded, and their motion and colour would be evaluated for nothing.
+///
+/// With a [`SharedMotion`] resource (`model.shared_motion`) each Gaussian's mean also moves by
+/// Σ_b w_b·u_b(t) (its [`MotionWeights`]; none without them), the bases evaluated once at the
+/// view's time; the colour is seen from the moved mean.
 pub fn deform(
     settings: Res<Settings>,
     state: Res<TrainState>,
     sample: Res<ViewSample>,
     every_gaussian: Option<Res<DeformEveryGaussian>>,
-    mut gaussians: Query<(DeformInputs, &mut Deformed)>,
+    shared: Option<Res<SharedMotion>>,
+    mut gaussians: Query<(DeformInputs, Option<&MotionWeights>, &mut Deformed)>,
 ) {
     let skip_faded = !faded_geometry_read(&settings, every_gaussian.is_some());
     let motion = settings.motion_basis();
@@ -42,9 +50,11 @@ pub fn deform(
     let sh_degree = state.sh_degree;
     let eye = sample.camera.center();
     let time = sample.time;
+    let bases_at = shared.map(|shared| shared.bases.evaluate(time));
     gaussians.par_iter_mut().for_each(
         |(
             ((pos, fourier, temporal, opacity, rotation, scale, color, rest), warped, window),
+            weights,
             mut out,
         )| {
             let dtw = warped.dtw;
@@ -54,8 +64,11 @@ pub fn deform(
                 *out = Deformed::faded(opacity);
                 return;
             }
-            let mean = Vec3::from_array(pos.mean)
+            let mut mean = Vec3::from_array(pos.mean)
                 + fourier_offset(&fourier.cos, &fourier.sin, &fourier.phase, motion, dtw);
+            if let (Some(at), Some(weights)) = (&bases_at, weights) {
+                mean += shared_offset(&weights.w, at);
+            }
             let scale_velocity = scale_velocity(scale.d1, scale_motion);
             *out = Deformed {
                 mean: mean.to_array(),

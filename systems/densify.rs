@@ -8,15 +8,17 @@ use glam::{Quat, Vec2, Vec3};
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::components::{
-    Adam, Deformed, Fourier, Grad, GradAccum, Opacity, Position, Rotation, Scale, SplatSlot,
-    Temporal, WarpedTime, each_param,
+    Adam, Deformed, Fourier, Grad, GradAccum, MotionWeights, Opacity, Position, Rotation, Scale,
+    SplatSlot, Temporal, WarpedTime, each_param,
 };
 use crate::model::deform::{
     fourier_offset, lifespan_fraction, logit, rotation_at, scale_velocity, sigmoid,
 };
 use crate::model::project::in_frustum;
 use crate::raster::{Splat, SplatGrad};
-use crate::resources::{DensifyReport, Rng, Settings, SplatBuffers, TrainState, ViewSample};
+use crate::resources::{
+    DensifyReport, Rng, Settings, SharedMotion, SplatBuffers, TrainState, ViewSample,
+};
 use crate::scene::{BaselineViews, CapPolicy, CloneTime, DensifyConfig, TatForm};
 
 /// Children of a split have their scales divided by this.
@@ -472,7 +474,44 @@ fn reset_optimizer(mut gaussian: EntityCommands) {
             };
         }
         each_param!(reset_every_group);
+        reset_every_group!(MotionWeights,);
     });
+}
+
+/// Standard deviation of a Gaussian's initial shared-motion weights (their mean is 0).
+pub const MOTION_WEIGHT_INIT_STD: f32 = 0.1;
+
+/// Gives every Gaussian without [`MotionWeights`] its weights of the shared motion bases
+/// ([`SharedMotion`], `model.shared_motion`): the first B drawn from N(0, 0.1²) with the run's
+/// RNG (in query order, so the same seed gives the same weights), the rest 0, with zero
+/// gradient and Adam moments. Small non-zero weights give the bases a gradient from the first
+/// iteration though they start at zero.
+///
+/// Runs when the world is built ([`crate::train::attach_motion_weights_now`]) and at the end of
+/// every iteration, for Gaussians spawned without them (clones and split children inherit
+/// their parent's).
+pub fn attach_motion_weights(
+    mut commands: Commands,
+    shared: Res<SharedMotion>,
+    mut rng: ResMut<Rng>,
+    lacking: Query<Entity, (With<Position>, Without<MotionWeights>)>,
+) {
+    let bases = shared
+        .bases
+        .bases
+        .min(crate::model::shared_motion::MAX_MOTION_BASES);
+    for entity in &lacking {
+        let mut weights = MotionWeights::default();
+        for w in &mut weights.w[..bases] {
+            let n: f32 = StandardNormal.sample(&mut rng.0);
+            *w = MOTION_WEIGHT_INIT_STD * n;
+        }
+        commands.entity(entity).insert((
+            weights,
+            Grad::<MotionWeights>::default(),
+            Adam::<MotionWeights>::default(),
+        ));
+    }
 }
 
 /// Caps every spatial opacity at 0.01 and clears its Adam moments.
@@ -493,6 +532,7 @@ pub fn densify_systems() -> ScheduleConfigs<ScheduleSystem> {
     (
         densify_and_prune.run_if(densify_step),
         reset_opacity.run_if(opacity_reset_step),
+        attach_motion_weights.run_if(resource_exists::<SharedMotion>),
     )
         .chain()
 }

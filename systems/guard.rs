@@ -8,8 +8,8 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
-use crate::components::{Grad, Param, each_param};
-use crate::resources::{Fault, NumericFault, TrainState};
+use crate::components::{Grad, MotionWeights, Param, each_param};
+use crate::resources::{Fault, NumericFault, SharedMotion, TrainState};
 
 /// Records a [`NumericFault`] when the loss is NaN or infinite.
 pub fn check_loss(state: Res<TrainState>, mut fault: ResMut<NumericFault>) {
@@ -58,6 +58,22 @@ pub fn check_gradient<P: Param>(
     }
 }
 
+/// Records a [`NumericFault`] when the gradient of the shared motion bases
+/// ([`SharedMotion::grad`]) holds a NaN or infinity, unless a fault is already recorded.
+pub fn check_shared_motion(
+    state: Res<TrainState>,
+    mut fault: ResMut<NumericFault>,
+    shared: Res<SharedMotion>,
+) {
+    if fault.0.is_none() && !all_finite(bytemuck::cast_slice(&shared.grad)) {
+        fault.0 = Some(Fault {
+            iteration: state.iteration,
+            group: "shared motion bases' gradient",
+            gaussian: None,
+        });
+    }
+}
+
 /// Whether no value is NaN or infinite: the largest magnitude's bits, as an integer maximum
 /// over the slice, stay below those of infinity.
 fn all_finite(values: &[f32]) -> bool {
@@ -74,14 +90,22 @@ pub struct GradientGuard;
 
 /// The guard, in [`GradientGuard`]: [`check_loss`], then [`check_gradient`] of every parameter
 /// group in declaration order ([`crate::components::param_groups!`]), so the fault names the
-/// first bad group.
+/// first bad group; then, with shared motion ([`SharedMotion`]), the weights' and the bases'
+/// gradients.
 pub fn check_gradients() -> ScheduleConfigs<ScheduleSystem> {
     macro_rules! checks {
         ($($group:ty,)*) => {
-            (check_loss, $(check_gradient::<$group>,)*).chain().in_set(GradientGuard)
+            (check_loss, $(check_gradient::<$group>,)*).chain()
         };
     }
-    each_param!(checks)
+    (
+        each_param!(checks),
+        (check_gradient::<MotionWeights>, check_shared_motion)
+            .chain()
+            .run_if(resource_exists::<SharedMotion>),
+    )
+        .chain()
+        .in_set(GradientGuard)
 }
 
 /// Run condition: no numeric fault has been recorded.

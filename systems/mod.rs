@@ -132,6 +132,8 @@ impl BackendPlugin for CpuBackend {
                 backward::backward_splats,
                 backward::backward_parameters,
                 smoothness::motion_smoothness.run_if(smoothness::smoothing),
+                backward::backward_shared_motion
+                    .run_if(resource_exists::<crate::resources::SharedMotion>),
                 guard::check_gradients(),
             )
                 .chain()

@@ -68,5 +68,9 @@ fn stages_run_in_the_documented_order() {
         .iter()
         .filter(|r| r.system.starts_with("adam_step<"))
         .count();
-    assert_eq!(adam, 8, "one Adam system per parameter group");
+    assert_eq!(
+        adam,
+        tadgs::components::PARAM_GROUPS.len() + 1,
+        "one Adam system per parameter group, and one for the shared motion's weights"
+    );
 }
