@@ -296,6 +296,13 @@ impl SegmentPlan {
             if model.time_windows.is_some() {
                 return Err(fail("its model is already a merged model".into()));
             }
+            if model.shared_motion.is_some() {
+                return Err(fail(
+                    "its model has shared motion bases (`model.shared_motion`), which the \
+                     segments of a merged model cannot share"
+                        .into(),
+                ));
+            }
             let config = model.config.clone().unwrap_or_default();
             match &merged.config {
                 None => merged.config = Some(config),

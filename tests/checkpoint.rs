@@ -8,7 +8,7 @@ use std::sync::Arc;
 use tadgs::data::Dataset;
 use tadgs::io::checkpoint::{Checkpoint, LOG_FILE, STATE_FILE, TENSORS_FILE};
 use tadgs::report::{StepRecord, TrainingLog};
-use tadgs::scene::{CloneTime, SceneConfig};
+use tadgs::scene::{CloneTime, SceneConfig, SharedMotionConfig};
 use tadgs::train::Trainer;
 
 /// A 6-frame, 48×36 demo scene: 36 iterations, densification every 10 from 10 and an opacity
@@ -44,7 +44,8 @@ fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
 /// moments must survive the stop too, and with clones centred at their gradient's time, which
 /// reads the statistics' time offsets, and with hard views drawn twice per epoch, whose
 /// per-view losses must survive the stop, and with deferred Adam, whose Gaussians left behind
-/// at the stop must keep how far behind they are.
+/// at the stop must keep how far behind they are, and with shared motion bases, whose values
+/// and moments and the Gaussians' weights and their moments must survive the stop.
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
     let (config, dataset) = tiny_scene();
@@ -57,6 +58,9 @@ fn resumed_run_matches_uninterrupted_run() {
     check_resume(&config, &dataset, 17);
     config.densify.clone_time = CloneTime::Gradient;
     check_resume(&config, &dataset, 17);
+    config.model.shared_motion = Some(SharedMotionConfig { bases: 3, knots: 4 });
+    check_resume(&config, &dataset, 17);
+    config.model.shared_motion = None;
     // Stop inside the second epoch, the first one to hold repeated views.
     let views = dataset.train.len() as u32;
     config.train.repeat_hard_views = 0.5;
@@ -109,12 +113,29 @@ fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>, stop: u32) {
             "the exposure corrections should have been trained before the stop"
         );
     }
+    if let Some(shared) = &saved.shared_motion {
+        assert!(
+            shared.m.iter().flatten().any(|&m| m != 0.0)
+                && saved.gaussians.iter().any(|g| g.motion_adam.m.w[0] != 0.0),
+            "the shared motion should have been trained before the stop"
+        );
+    }
     saved.save(dir.path()).unwrap();
     drop(first);
 
     let loaded = Checkpoint::load(dir.path()).unwrap();
     assert_eq!(loaded.state, saved.state);
     assert_eq!(loaded.gaussians, saved.gaussians);
+    let kept = |c: &Checkpoint| {
+        c.shared_motion
+            .as_ref()
+            .map(|s| (s.bases.clone(), s.m.clone(), s.v.clone()))
+    };
+    assert_eq!(
+        kept(&loaded),
+        kept(&saved),
+        "shared motion bases or moments"
+    );
     assert_eq!(loaded.log, log);
     let mut resumed = Trainer::from_checkpoint(&loaded, dataset.clone()).unwrap();
     let mut log = loaded.log.clone();
@@ -142,6 +163,10 @@ fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>, stop: u32) {
         );
     }
     assert_eq!(a.state, b.state, "counters, view order or RNG differ");
+    assert_eq!(
+        a.shared_motion, b.shared_motion,
+        "the shared motion differs"
+    );
     assert_eq!(a.gaussians.len(), b.gaussians.len());
     for (i, (x, y)) in a.gaussians.iter().zip(&b.gaussians).enumerate() {
         assert_eq!(x, y, "Gaussian {i} differs");

@@ -32,6 +32,7 @@ fn valid_model_bytes(dir: &Path) -> Vec<u8> {
         frame_count: None,
         config: None,
         time_windows: None,
+        shared_motion: None,
     };
     model.save(&path).unwrap();
     std::fs::read(path).unwrap()

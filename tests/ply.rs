@@ -307,6 +307,7 @@ fn frame_export_renders_like_the_model_at_that_time() {
         frame_count: Some(30),
         config: Some(tadgs::scene::ModelConfig::default()),
         time_windows: None,
+        shared_motion: None,
     };
     let settings = Settings::new(&model.scene("test", [0.0; 3]), 30, 1.0);
     let time = 0.3;

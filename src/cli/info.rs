@@ -92,6 +92,12 @@ fn describe_model(model: &Model, settings: &Settings) {
             segments.len()
         );
     }
+    if let Some(motion) = &model.shared_motion {
+        println!(
+            "shared motion    {} bases of {} knots (CPU backend only)",
+            motion.bases.bases, motion.bases.knots
+        );
+    }
     let m = &settings.model;
     println!(
         "deformation      opacity {:?}, phase {:?}, scale motion {}, TOW {}",

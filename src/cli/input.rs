@@ -40,13 +40,7 @@ impl Input {
                     path.display(),
                     checkpoint.state.iteration
                 );
-                Model {
-                    gaussians: checkpoint.gaussians.iter().map(|g| g.params).collect(),
-                    sh_degree: checkpoint.state.sh_degree,
-                    frame_count: None,
-                    config: Some(checkpoint.state.scene.model.clone()),
-                    time_windows: None,
-                }
+                checkpoint.model()
             } else {
                 Model::load(&model_path)?
             };

@@ -7,7 +7,9 @@
 //!   `grad_accum_offset`: Σw·g·Δt, absent from older checkpoints, which read it as 0), and
 //!   `adam_clock`, the iteration each Gaussian's Adam state is current at (behind the
 //!   checkpoint's only under `train.deferred_adam`; older checkpoints read the iteration).
-//!   Adam's step count is the iteration (bias correction uses the global step).
+//!   Adam's step count is the iteration (bias correction uses the global step). With
+//!   `model.shared_motion`, also the bases (`shared_motion`, B × 3K) and each Gaussian's
+//!   weights (`motion_weights`, N × B), each with its Adam moments (`adam.m.`, `adam.v.`).
 //! - `log.json`: the run's history for the report ([`TrainingLog`]).
 //! - `state.ron`, written last: the scene settings, the counters (iteration, SH degree, last
 //!   densification), the view order of the current epoch and the RNG state.
@@ -24,13 +26,19 @@ use safetensors::tensor::Dtype;
 use serde::{Deserialize, Serialize};
 
 use super::model::{
-    ModelError, NamedTensor, checked_metadata, param_tensors, read_param_tensors, write_tensors,
+    MOTION_WEIGHTS_TENSOR, ModelError, ModelMotion, NamedTensor, SHARED_MOTION_TENSOR,
+    bases_tensor, checked_metadata, param_tensors, read_bases_tensor, read_param_tensors,
+    read_weights_tensor, weights_tensor, write_tensors,
 };
 use crate::components::{
-    AdamClock, AdamRefs, GaussianParams, GradAccum, ParamRefs, spawn_gaussians,
+    Adam, AdamClock, AdamRefs, GaussianParams, Grad, GradAccum, MotionWeights, ParamRefs,
+    spawn_gaussians, spawn_gaussians_with,
 };
+use crate::model::shared_motion::MotionBases;
 use crate::report::TrainingLog;
-use crate::resources::{CameraExposures, DensifyReport, Rng, Settings, TrainState, ViewOrder};
+use crate::resources::{
+    CameraExposures, DensifyReport, Rng, Settings, SharedMotion, TrainState, ViewOrder,
+};
 use crate::scene::SceneConfig;
 
 /// The tensors of a checkpoint.
@@ -92,6 +100,10 @@ pub struct GaussianState {
     pub accum: GradAccum,
     /// The iteration the Adam state is current at ([`AdamClock`]).
     pub clock: u32,
+    /// The weights of the shared motion bases (zero without `model.shared_motion`).
+    pub motion_weights: MotionWeights,
+    /// Their Adam moments.
+    pub motion_adam: Adam<MotionWeights>,
 }
 
 /// The ChaCha8 generator's position: seed, stream and word position (128-bit, as text).
@@ -164,6 +176,10 @@ pub struct Checkpoint {
     pub state: CheckpointState,
     /// Every Gaussian's parameters, Adam moments and statistics (`tensors.safetensors`).
     pub gaussians: Vec<GaussianState>,
+    /// The shared motion bases and their Adam moments, with `model.shared_motion`
+    /// (`tensors.safetensors`; the gradient is not kept). The Gaussians' weights are then in
+    /// [`GaussianState::motion_weights`].
+    pub shared_motion: Option<SharedMotion>,
     /// The run's history (`log.json`).
     pub log: TrainingLog,
 }
@@ -174,10 +190,11 @@ impl Checkpoint {
         let train = *world.resource::<TrainState>();
         // Only deferred Adam leaves Gaussians behind; any other run is current everywhere.
         let deferred = world.resource::<Settings>().train.deferred_adam;
+        type Weights<'a> = (Option<&'a MotionWeights>, Option<&'a Adam<MotionWeights>>);
         let gaussians: Vec<GaussianState> = world
-            .query::<(ParamRefs, AdamRefs, &GradAccum, Option<&AdamClock>)>()
+            .query::<(ParamRefs, AdamRefs, &GradAccum, Option<&AdamClock>, Weights)>()
             .iter(world)
-            .map(|(params, adam, accum, clock)| {
+            .map(|(params, adam, accum, clock, (weights, motion_adam))| {
                 let [m, v] = GaussianParams::moments_from_refs(adam);
                 GaussianState {
                     params: GaussianParams::from_refs(params),
@@ -185,9 +202,12 @@ impl Checkpoint {
                     v,
                     accum: *accum,
                     clock: clock.filter(|_| deferred).map_or(train.iteration, |c| c.0),
+                    motion_weights: weights.copied().unwrap_or_default(),
+                    motion_adam: motion_adam.copied().unwrap_or_default(),
                 }
             })
             .collect();
+        let shared_motion = world.get_resource::<SharedMotion>().cloned();
         let order = world.resource::<ViewOrder>();
         let d = train.last_densify;
         let state = CheckpointState {
@@ -209,7 +229,24 @@ impl Checkpoint {
         Self {
             state,
             gaussians,
+            shared_motion,
             log,
+        }
+    }
+
+    /// The model this checkpoint holds (its Gaussians' parameters, SH degree, deformation
+    /// settings and shared motion); the frame count is not recorded.
+    pub fn model(&self) -> crate::io::model::Model {
+        crate::io::model::Model {
+            gaussians: self.gaussians.iter().map(|g| g.params).collect(),
+            sh_degree: self.state.sh_degree,
+            frame_count: None,
+            config: Some(self.state.scene.model.clone()),
+            time_windows: None,
+            shared_motion: self.shared_motion.as_ref().map(|shared| ModelMotion {
+                bases: shared.bases.clone(),
+                weights: self.gaussians.iter().map(|g| g.motion_weights).collect(),
+            }),
         }
     }
 
@@ -219,16 +256,32 @@ impl Checkpoint {
     /// view order and the RNG.
     pub fn restore_into(&self, world: &mut World) {
         let s = &self.state;
-        spawn_gaussians(
-            world,
-            s.scene.model.sh_degree,
-            self.gaussians.iter().map(|g| {
-                let (mut bundle, optional) = g.params.bundles_with_moments(&g.m, &g.v);
-                bundle.2.0 = g.accum;
-                bundle.2.4 = AdamClock(g.clock);
-                (bundle, optional)
-            }),
-        );
+        let bundles = self.gaussians.iter().map(|g| {
+            let (mut bundle, optional) = g.params.bundles_with_moments(&g.m, &g.v);
+            bundle.2.0 = g.accum;
+            bundle.2.4 = AdamClock(g.clock);
+            (bundle, optional)
+        });
+        match &self.shared_motion {
+            None => spawn_gaussians(world, s.scene.model.sh_degree, bundles),
+            Some(shared) => {
+                world.insert_resource(shared.clone());
+                let weights = self.gaussians.iter().map(|g| {
+                    (
+                        g.motion_weights,
+                        Grad::<MotionWeights>::default(),
+                        g.motion_adam,
+                    )
+                });
+                spawn_gaussians_with(
+                    world,
+                    s.scene.model.sh_degree,
+                    bundles
+                        .zip(weights)
+                        .map(|((bundle, optional), weights)| (bundle, optional, weights)),
+                );
+            }
+        }
         *world.resource_mut::<TrainState>() = TrainState {
             iteration: s.iteration,
             sh_degree: s.sh_degree,
@@ -296,6 +349,33 @@ impl Checkpoint {
             tensors.extend(param_tensors(&moments, prefix));
         }
         tensors.extend(accum_tensors(&self.gaussians));
+        if let Some(shared) = &self.shared_motion {
+            let b = &shared.bases;
+            let like_bases = |values: &[[f32; 3]]| MotionBases {
+                values: values.to_vec(),
+                ..b.clone()
+            };
+            type WeightsOf = fn(&GaussianState) -> MotionWeights;
+            let weights: [(&str, WeightsOf); 3] = [
+                ("", |g| g.motion_weights),
+                ("adam.m.", |g| g.motion_adam.m),
+                ("adam.v.", |g| g.motion_adam.v),
+            ];
+            for ((prefix, weights), values) in
+                weights.into_iter().zip([&b.values, &shared.m, &shared.v])
+            {
+                tensors.push(bases_tensor(
+                    format!("{prefix}{SHARED_MOTION_TENSOR}"),
+                    &like_bases(values),
+                ));
+                let weights: Vec<MotionWeights> = self.gaussians.iter().map(weights).collect();
+                tensors.push(weights_tensor(
+                    format!("{prefix}{MOTION_WEIGHTS_TENSOR}"),
+                    b.bases,
+                    &weights,
+                ));
+            }
+        }
         tensors.push(NamedTensor {
             name: "adam_clock".into(),
             dtype: Dtype::U32,
@@ -378,10 +458,11 @@ impl Checkpoint {
         }
 
         let (tensor_path, bytes) = read(TENSORS_FILE)?;
-        let gaussians = read_gaussian_states(&tensor_path, &bytes, &state)?;
+        let (gaussians, shared_motion) = read_gaussian_states(&tensor_path, &bytes, &state)?;
         Ok(Self {
             state,
             gaussians,
+            shared_motion,
             log: log.log,
         })
     }
@@ -474,12 +555,14 @@ fn read_state(dir: &Path) -> Result<CheckpointState, CheckpointError> {
     Ok(state)
 }
 
-/// Reads `tensors.safetensors` and checks it against `state` (iteration, Gaussian count).
+/// Reads `tensors.safetensors` and checks it against `state` (iteration, Gaussian count, and
+/// the shape of the shared motion bases its scene asks for): every Gaussian's state, and the
+/// shared motion bases with their Adam moments when the scene has them.
 fn read_gaussian_states(
     path: &Path,
     bytes: &[u8],
     state: &CheckpointState,
-) -> Result<Vec<GaussianState>, CheckpointError> {
+) -> Result<(Vec<GaussianState>, Option<SharedMotion>), CheckpointError> {
     let invalid = |message: String| CheckpointError::Invalid {
         path: path.to_path_buf(),
         message,
@@ -525,10 +608,41 @@ fn read_gaussian_states(
         Ok(_) => Some(raw_tensor(&tensors, "adam_clock", Dtype::U32, [n, 1]).map_err(&invalid)?),
         Err(_) => None,
     };
+    // The shared motion, with its moments: present exactly when the scene has it.
+    let shared_motion = match state.scene.model.shared_motion {
+        None => None,
+        Some(config) => {
+            let shape = (config.bases as usize, config.knots as usize);
+            let bases = |prefix: &str| {
+                read_bases_tensor(
+                    path,
+                    &tensors,
+                    &format!("{prefix}{SHARED_MOTION_TENSOR}"),
+                    Some(shape),
+                )
+            };
+            let weights = |prefix: &str| {
+                read_weights_tensor(
+                    path,
+                    &tensors,
+                    &format!("{prefix}{MOTION_WEIGHTS_TENSOR}"),
+                    shape.0,
+                    n,
+                )
+            };
+            let mut shared = SharedMotion::new(bases("")?);
+            shared.m = bases("adam.m.")?.values;
+            shared.v = bases("adam.v.")?.values;
+            Some((
+                shared,
+                [weights("")?, weights("adam.m.")?, weights("adam.v.")?],
+            ))
+        }
+    };
     let word = |bytes: &[u8], i: usize| -> [u8; 4] {
         bytes[4 * i..4 * i + 4].try_into().expect("4 bytes")
     };
-    Ok((0..n)
+    let gaussians = (0..n)
         .map(|i| GaussianState {
             params: params[i],
             m: m[i],
@@ -542,8 +656,18 @@ fn read_gaussian_states(
                 weighted_offset: offsets.map_or(0.0, |o| f32::from_le_bytes(word(o, i))),
             },
             clock: clocks.map_or(state.iteration, |c| u32::from_le_bytes(word(c, i))),
+            motion_weights: shared_motion
+                .as_ref()
+                .map_or_else(Default::default, |(_, w)| w[0][i]),
+            motion_adam: shared_motion
+                .as_ref()
+                .map_or_else(Default::default, |(_, w)| Adam {
+                    m: w[1][i],
+                    v: w[2][i],
+                }),
         })
-        .collect())
+        .collect();
+    Ok((gaussians, shared_motion.map(|(shared, _)| shared)))
 }
 
 /// The bytes of tensor `name`, checked for type and shape.

@@ -14,15 +14,25 @@ use bevy_ecs::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
 use crate::components::{
-    GaussianParams, ParamRefs, TimeWindow, spawn_gaussians, spawn_gaussians_with,
+    Adam, GaussianParams, Grad, MotionWeights, ParamRefs, TimeWindow, spawn_gaussians,
+    spawn_gaussians_with,
 };
 use crate::gpu::GpuError;
 use crate::layout::{SECTION_NAMES, SECTIONS, WIDTHS, gaussians_of, sections_of};
+use crate::model::shared_motion::{MAX_MOTION_BASES, MotionBases};
+use crate::resources::SharedMotion;
 use crate::scene::{BackendKind, DataSource, ModelConfig, SceneConfig};
 
 /// Name of the optional `N × 3` tensor of time windows (start, end, fade) of a merged
 /// segment model.
 pub const TIME_WINDOW_TENSOR: &str = "time_window";
+
+/// Name of the `B × 3K` tensor of shared motion bases U (`model.shared_motion`): row b holds
+/// U[b][0..K] as x, y, z per knot.
+pub const SHARED_MOTION_TENSOR: &str = "shared_motion";
+
+/// Name of the `N × B` tensor of each Gaussian's weights of the shared motion bases.
+pub const MOTION_WEIGHTS_TENSOR: &str = "motion_weights";
 
 /// Value of the `format` metadata key.
 pub const MODEL_FORMAT: &str = "tadgs-4d-gaussians";
@@ -86,36 +96,67 @@ pub struct Model {
     /// One time window per Gaussian in a model merged from temporal segments (`tadgs segment
     /// merge`); `None` in trained models, whose Gaussians draw at every time.
     pub time_windows: Option<Vec<TimeWindow>>,
+    /// The shared motion bases and each Gaussian's weights, in a model trained with
+    /// `model.shared_motion`; `None` otherwise.
+    pub shared_motion: Option<ModelMotion>,
+}
+
+/// The shared motion of a model (`model.shared_motion`, see
+/// [`crate::model::shared_motion`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModelMotion {
+    /// The bases U.
+    pub bases: MotionBases,
+    /// Each Gaussian's weights, in the order of [`Model::gaussians`].
+    pub weights: Vec<MotionWeights>,
 }
 
 impl Model {
     /// Reads every Gaussian's parameters out of `world`.
     pub fn from_world(world: &mut World, sh_degree: u32) -> Self {
-        let (gaussians, windows): (Vec<_>, Vec<_>) = world
-            .query::<(ParamRefs, Option<&TimeWindow>)>()
-            .iter(world)
-            .map(|(params, window)| (GaussianParams::from_refs(params), window.copied()))
-            .unzip();
+        let mut gaussians = Vec::new();
+        let mut windows = Vec::new();
+        let mut weights = Vec::new();
+        let mut rows = world.query::<(ParamRefs, Option<&TimeWindow>, Option<&MotionWeights>)>();
+        for (params, window, w) in rows.iter(world) {
+            gaussians.push(GaussianParams::from_refs(params));
+            windows.push(window.copied());
+            // A Gaussian without weights has no shared motion: weights 0 draw it alike.
+            weights.push(w.copied().unwrap_or_default());
+        }
         let time_windows = windows.iter().any(Option::is_some).then(|| {
             windows
                 .iter()
                 .map(|w| w.unwrap_or(TimeWindow::ALWAYS))
                 .collect()
         });
+        let shared_motion = world
+            .get_resource::<SharedMotion>()
+            .map(|shared| ModelMotion {
+                bases: shared.bases.clone(),
+                weights,
+            });
         Self {
             gaussians,
             sh_degree,
             frame_count: None,
             config: None,
             time_windows,
+            shared_motion,
         }
     }
 
-    /// Fails when `backend` cannot draw this model: the GPU backend draws no time windows.
+    /// Fails when `backend` cannot draw this model: the GPU backend draws no time windows and
+    /// no shared motion bases.
     pub fn check_backend(&self, backend: BackendKind) -> Result<(), GpuError> {
         if backend == BackendKind::Gpu && self.time_windows.is_some() {
             return Err(GpuError::Unsupported(
                 "the time windows of a merged segment model",
+            ));
+        }
+        if backend == BackendKind::Gpu && self.shared_motion.is_some() {
+            return Err(GpuError::Unsupported(
+                "the shared motion bases of a model trained with `model.shared_motion`",
             ));
         }
         Ok(())
@@ -169,6 +210,8 @@ impl Model {
     /// Spawns every Gaussian into `world` with fresh optimiser state, with the higher SH
     /// bands when the model's degree, or that of the scene in the world's
     /// [`Settings`](crate::resources::Settings) (training on from the model), is above 0.
+    /// A model with shared motion also puts its bases into the world's [`SharedMotion`]
+    /// (replacing any there, with fresh Adam moments) and gives each Gaussian its weights.
     pub fn spawn_into(&self, world: &mut World) {
         let scene_degree = world
             .get_resource::<crate::resources::Settings>()
@@ -178,14 +221,41 @@ impl Model {
             .gaussians
             .iter()
             .map(|g| (g.bundle(), g.optional_bundle()));
-        match &self.time_windows {
-            None => spawn_gaussians(world, sh_degree, bundles),
-            Some(windows) => spawn_gaussians_with(
+        let weights = self.shared_motion.as_ref().map(|motion| {
+            world.insert_resource(SharedMotion::new(motion.bases.clone()));
+            motion.weights.iter().map(|&w| {
+                (
+                    w,
+                    Grad::<MotionWeights>::default(),
+                    Adam::<MotionWeights>::default(),
+                )
+            })
+        });
+        match (&self.time_windows, weights) {
+            (None, None) => spawn_gaussians(world, sh_degree, bundles),
+            (Some(windows), None) => spawn_gaussians_with(
                 world,
                 sh_degree,
                 bundles
                     .zip(windows)
                     .map(|((bundle, optional), window)| (bundle, optional, *window)),
+            ),
+            (None, Some(weights)) => spawn_gaussians_with(
+                world,
+                sh_degree,
+                bundles
+                    .zip(weights)
+                    .map(|((bundle, optional), weights)| (bundle, optional, weights)),
+            ),
+            (Some(windows), Some(weights)) => spawn_gaussians_with(
+                world,
+                sh_degree,
+                bundles
+                    .zip(windows)
+                    .zip(weights)
+                    .map(|(((bundle, optional), window), weights)| {
+                        (bundle, optional, (*window, weights))
+                    }),
             ),
         }
     }
@@ -213,6 +283,14 @@ impl Model {
                 TIME_WINDOW_TENSOR.into(),
                 3,
                 bytemuck::cast_slice(windows),
+            ));
+        }
+        if let Some(motion) = &self.shared_motion {
+            tensors.push(bases_tensor(SHARED_MOTION_TENSOR.into(), &motion.bases));
+            tensors.push(weights_tensor(
+                MOTION_WEIGHTS_TENSOR.into(),
+                motion.bases.bases,
+                &motion.weights,
             ));
         }
         write_tensors(path, &tensors, metadata)
@@ -287,13 +365,147 @@ impl Model {
         } else {
             None
         };
+        let shared_motion = read_model_motion(path, &tensors, "", gaussians.len())?;
+        if let (Some(motion), Some(wanted)) = (
+            &shared_motion,
+            config.as_ref().and_then(|c| c.shared_motion),
+        ) && (motion.bases.bases, motion.bases.knots)
+            != (wanted.bases as usize, wanted.knots as usize)
+        {
+            return Err(format_error(format!(
+                "tensor `{SHARED_MOTION_TENSOR}` holds {} bases of {} knots, but metadata \
+                 `model` asks for {} of {}",
+                motion.bases.bases, motion.bases.knots, wanted.bases, wanted.knots
+            )));
+        }
         Ok(Self {
             gaussians,
             sh_degree,
             frame_count,
             config,
             time_windows,
+            shared_motion,
         })
+    }
+}
+
+/// The shared motion bases `bases` as the F32 tensor `name` of shape [B, 3K].
+pub(crate) fn bases_tensor(name: String, bases: &MotionBases) -> NamedTensor {
+    float_tensor(
+        name,
+        3 * bases.knots,
+        bytemuck::cast_slice(bases.values.as_slice()),
+    )
+}
+
+/// The first `bases` weights of each Gaussian as the F32 tensor `name` of shape [N, B].
+pub(crate) fn weights_tensor(name: String, bases: usize, weights: &[MotionWeights]) -> NamedTensor {
+    let values: Vec<f32> = weights
+        .iter()
+        .flat_map(|w| w.w[..bases].iter().copied())
+        .collect();
+    float_tensor(name, bases, &values)
+}
+
+/// Reads the tensor `name` written by [`bases_tensor`]; `shape` (B, K) must match when given.
+pub(crate) fn read_bases_tensor(
+    path: &Path,
+    tensors: &safetensors::SafeTensors<'_>,
+    name: &str,
+    shape: Option<(usize, usize)>,
+) -> Result<MotionBases, ModelError> {
+    let tensor_error = |message: String| ModelError::Tensor {
+        path: path.to_path_buf(),
+        tensor: name.to_string(),
+        message,
+    };
+    let view = tensors
+        .tensor(name)
+        .map_err(|_| tensor_error("missing".into()))?;
+    let (bases, knots) = match view.shape() {
+        &[rows, width] if width % 3 == 0 => (rows, width / 3),
+        other => {
+            return Err(tensor_error(format!(
+                "shape {other:?}, expected [B, 3K] (x, y, z of each knot per basis)"
+            )));
+        }
+    };
+    if !(1..=MAX_MOTION_BASES).contains(&bases) || knots < 2 {
+        return Err(tensor_error(format!(
+            "{bases} bases of {knots} knots: expected 1 to {MAX_MOTION_BASES} bases of at least \
+             2 knots"
+        )));
+    }
+    if let Some((want_bases, want_knots)) = shape
+        && (bases, knots) != (want_bases, want_knots)
+    {
+        return Err(tensor_error(format!(
+            "{bases} bases of {knots} knots, expected {want_bases} of {want_knots}"
+        )));
+    }
+    let values = read_floats(path, tensors, name.to_string(), 3 * knots, Some(bases))?;
+    Ok(MotionBases {
+        bases,
+        knots,
+        values: bytemuck::cast_slice::<f32, [f32; 3]>(&values).to_vec(),
+    })
+}
+
+/// Reads the tensor `name` written by [`weights_tensor`]: `rows` Gaussians of `bases` weights.
+pub(crate) fn read_weights_tensor(
+    path: &Path,
+    tensors: &safetensors::SafeTensors<'_>,
+    name: &str,
+    bases: usize,
+    rows: usize,
+) -> Result<Vec<MotionWeights>, ModelError> {
+    let values = read_floats(path, tensors, name.to_string(), bases, Some(rows))?;
+    Ok(values
+        .chunks_exact(bases.max(1))
+        .map(|row| {
+            let mut w = MotionWeights::default();
+            w.w[..bases].copy_from_slice(row);
+            w
+        })
+        .collect())
+}
+
+/// The shared motion of a model or checkpoint file (tensors `prefix` + `shared_motion` and
+/// `motion_weights`, `rows` Gaussians): `None` when it has neither, an error when it has only
+/// one of them.
+pub(crate) fn read_model_motion(
+    path: &Path,
+    tensors: &safetensors::SafeTensors<'_>,
+    prefix: &str,
+    rows: usize,
+) -> Result<Option<ModelMotion>, ModelError> {
+    let (bases_name, weights_name) = (
+        format!("{prefix}{SHARED_MOTION_TENSOR}"),
+        format!("{prefix}{MOTION_WEIGHTS_TENSOR}"),
+    );
+    let names = tensors.names();
+    match (
+        names.contains(&bases_name.as_str()),
+        names.contains(&weights_name.as_str()),
+    ) {
+        (false, false) => Ok(None),
+        (true, true) => {
+            let bases = read_bases_tensor(path, tensors, &bases_name, None)?;
+            let weights = read_weights_tensor(path, tensors, &weights_name, bases.bases, rows)?;
+            Ok(Some(ModelMotion { bases, weights }))
+        }
+        (has_bases, _) => {
+            let (present, missing) = if has_bases {
+                (&bases_name, &weights_name)
+            } else {
+                (&weights_name, &bases_name)
+            };
+            Err(ModelError::Tensor {
+                path: path.to_path_buf(),
+                tensor: missing.clone(),
+                message: format!("missing, though tensor `{present}` is there (shared motion)"),
+            })
+        }
     }
 }
 
@@ -459,6 +671,7 @@ mod tests {
                 ..ModelConfig::default()
             }),
             time_windows: None,
+            shared_motion: None,
         }
     }
 
@@ -555,6 +768,61 @@ mod tests {
                 message.contains("time_window") && message.contains("row 3"),
                 "{message}"
             );
+        }
+    }
+
+    /// A model's shared motion (bases and per-Gaussian weights) survives saving bit for bit,
+    /// comes back into a world as its resource and components (and out again); a file with
+    /// only one of its two tensors is refused naming the missing one; the GPU backend refuses
+    /// such a model.
+    #[test]
+    fn shared_motion_round_trips_and_half_of_it_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("shared.safetensors");
+        let mut model = sample_model();
+        let mut bases = MotionBases::zeros(3, 4);
+        for (i, v) in bases.values.iter_mut().enumerate() {
+            *v = [i as f32 * 0.01, -0.02, 0.5 - i as f32 * 0.03];
+        }
+        let weights: Vec<MotionWeights> = (0..5)
+            .map(|i| {
+                let mut w = MotionWeights::default();
+                w.w[..3].copy_from_slice(&[0.1 * i as f32, -0.05, 0.2]);
+                w
+            })
+            .collect();
+        model.shared_motion = Some(ModelMotion {
+            bases: bases.clone(),
+            weights: weights.clone(),
+        });
+        model.save(&path).unwrap();
+        let back = Model::load(&path).unwrap();
+        assert_eq!(back.shared_motion, model.shared_motion);
+        assert!(back.check_backend(BackendKind::Gpu).is_err());
+
+        let mut world = World::new();
+        back.spawn_into(&mut world);
+        assert_eq!(world.resource::<SharedMotion>().bases, bases);
+        let again = Model::from_world(&mut world, 2).shared_motion.unwrap();
+        let sorted = |mut w: Vec<MotionWeights>| {
+            w.sort_by(|a, b| a.w[0].total_cmp(&b.w[0]));
+            w
+        };
+        assert_eq!(sorted(again.weights), sorted(weights));
+
+        let bytes = std::fs::read(&path).unwrap();
+        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+        let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        for dropped in [SHARED_MOTION_TENSOR, MOTION_WEIGHTS_TENSOR] {
+            let kept: Vec<_> = tensors
+                .tensors()
+                .into_iter()
+                .filter(|(name, _)| name != dropped)
+                .collect();
+            let half = dir.path().join("half.safetensors");
+            safetensors::serialize_to_file(kept, header.metadata().clone(), &half).unwrap();
+            let message = Model::load(&half).unwrap_err().to_string();
+            assert!(message.contains(&format!("`{dropped}`")), "{message}");
         }
     }
 

@@ -27,6 +27,7 @@ use crate::model::deform::{
     fourier_offset, logit, rotation_at, scale_velocity, temporal_opacity, window_factor,
 };
 use crate::model::sh::{SH_COEFFS, coeff_count};
+use crate::model::shared_motion::shared_offset;
 use crate::resources::Settings;
 use crate::scene::{ModelConfig, OpacityModel};
 
@@ -375,6 +376,7 @@ impl SplatCloud {
             frame_count: Some(1),
             config: Some(config),
             time_windows: None,
+            shared_motion: None,
         }
     }
 }
@@ -386,6 +388,10 @@ impl SplatCloud {
 /// view-dependent). `settings` must be the model's (see [`Model::scene`]).
 pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32) -> SplatCloud {
     let motion = settings.motion_basis();
+    let shared = model
+        .shared_motion
+        .as_ref()
+        .map(|shared| (shared.bases.evaluate(time), &shared.weights));
     let splats = model
         .gaussians
         .iter()
@@ -404,8 +410,11 @@ pub fn snapshot(model: &Model, settings: &Settings, time: f32, min_opacity: f32)
                 return None;
             }
             let f = &g.fourier;
-            let mean =
+            let mut mean =
                 Vec3::from(g.position.mean) + fourier_offset(&f.cos, &f.sin, &f.phase, motion, dtw);
+            if let Some((at, weights)) = &shared {
+                mean += shared_offset(&weights[index].w, at);
+            }
             let velocity = scale_velocity(g.scale.d1, settings.model.scale_motion);
             Some(StaticSplat {
                 mean: mean.to_array(),

@@ -733,6 +733,7 @@ mod tests {
             frame_count: Some(3),
             config: None,
             time_windows: None,
+            shared_motion: None,
         };
         let scene = model.scene("empty", [0.0; 3]);
         let renderer = Renderer::new(&scene, &model, 3).unwrap();
