@@ -548,8 +548,8 @@ impl Default for LearningRates {
             sh_dc: 2.5e-3,
             sh_rest_divisor: 20.0,
             exposure: 1e-3,
-            motion_bases: 1.6e-4,
-            motion_weights: 1e-2,
+            motion_bases: 1.6e-5,
+            motion_weights: 1e-3,
         }
     }
 }
