@@ -3,6 +3,8 @@
 
 #[path = "common/demo.rs"]
 mod demo;
+#[path = "common/densify.rs"]
+mod densify;
 #[path = "common/rows.rs"]
 mod rows;
 
@@ -10,6 +12,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
+use densify::split_at_median_scale;
 use rows::in_entity_order;
 use tadgs::components::*;
 use tadgs::data::Dataset;
@@ -136,18 +139,7 @@ fn densification_keeps_components_and_adam_state_consistent() {
     let mut world = World::new();
     insert_resources(&mut world, &config, dataset).expect("CPU backend");
     spawn_initial_gaussians(&mut world, &config).expect("random points initialise");
-    // Median initial scale as the clone/split boundary, so both happen.
-    let mut scales: Vec<f32> = world
-        .query::<&Scale>()
-        .iter(&world)
-        .map(|s| s.d0[0].exp())
-        .collect();
-    scales.sort_by(f32::total_cmp);
-    let extent = world.resource::<tadgs::resources::Settings>().extent;
-    world
-        .resource_mut::<tadgs::resources::Settings>()
-        .densify
-        .percent_dense = scales[scales.len() / 2] / extent;
+    split_at_median_scale(&mut world);
 
     world.init_resource::<Before>();
     let mut schedule = training_schedule();

@@ -6,12 +6,15 @@
 
 #[path = "common/demo.rs"]
 mod demo;
+#[path = "common/densify.rs"]
+mod densify;
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
+use densify::split_at_median_scale;
 use glam::Vec3;
 use tadgs::components::*;
 use tadgs::data::{Camera, Dataset};
@@ -138,17 +141,7 @@ fn densification_hands_the_weights_to_the_children() {
     insert_resources(&mut world, &config, dataset).expect("CPU backend");
     spawn_initial_gaussians(&mut world, &config).expect("random points initialise");
     attach_motion_weights_now(&mut world);
-    let mut scales: Vec<f32> = world
-        .query::<&Scale>()
-        .iter(&world)
-        .map(|s| s.d0[0].exp())
-        .collect();
-    scales.sort_by(f32::total_cmp);
-    let extent = world.resource::<tadgs::resources::Settings>().extent;
-    world
-        .resource_mut::<tadgs::resources::Settings>()
-        .densify
-        .percent_dense = scales[scales.len() / 2] / extent;
+    split_at_median_scale(&mut world);
     world.init_resource::<Before>();
     let mut schedule = training_schedule();
     schedule.add_systems(snapshot.after(TrainSet::Adam).before(TrainSet::Densify));
