@@ -12,7 +12,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
-use densify::split_at_median_scale;
+use densify::{densify_everything_every_ten, run_to_first_densification, split_at_median_scale};
 use rows::in_entity_order;
 use tadgs::components::*;
 use tadgs::data::Dataset;
@@ -20,7 +20,7 @@ use tadgs::data::synthetic::demo_scene;
 use tadgs::metrics::loss::{LossScratch, training_loss};
 use tadgs::resources::TrainState;
 use tadgs::scene::{DataSource, SceneConfig};
-use tadgs::systems::{TrainSet, training_schedule};
+use tadgs::systems::training_schedule;
 use tadgs::train::{Trainer, insert_resources, spawn_initial_gaussians};
 
 /// A 6-frame, 48×36 version of the demo scene.
@@ -131,22 +131,15 @@ fn all_adam_zero(world: &mut World, e: Entity) -> bool {
 #[test]
 fn densification_keeps_components_and_adam_state_consistent() {
     let (mut config, dataset) = tiny_scene();
-    config.densify.from_iter = 0;
-    config.densify.interval = 10;
-    config.densify.grad_threshold = 1e-9; // everything seen is densified
+    densify_everything_every_ten(&mut config.densify);
     config.densify.prune_opacity = 0.1; // the initial opacity: about half fall below it
-    config.densify.tat = false;
     let mut world = World::new();
     insert_resources(&mut world, &config, dataset).expect("CPU backend");
     spawn_initial_gaussians(&mut world, &config).expect("random points initialise");
     split_at_median_scale(&mut world);
 
     world.init_resource::<Before>();
-    let mut schedule = training_schedule();
-    schedule.add_systems(snapshot.after(TrainSet::Adam).before(TrainSet::Densify));
-    for _ in 0..10 {
-        schedule.run(&mut world);
-    }
+    run_to_first_densification(&mut world, snapshot);
     let report = world.resource::<TrainState>().last_densify;
     assert_eq!(report.iteration, 10);
     assert!(

@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::RunSystemOnce;
-use densify::split_at_median_scale;
+use densify::{densify_everything_every_ten, run_to_first_densification, split_at_median_scale};
 use glam::Vec3;
 use tadgs::components::*;
 use tadgs::data::{Camera, Dataset};
@@ -23,7 +23,6 @@ use tadgs::model::shared_motion::{KnotSpan, MAX_MOTION_BASES, MotionBases};
 use tadgs::resources::{SharedMotion, TrainState, ViewSample};
 use tadgs::scene::{SceneConfig, SharedMotionConfig};
 use tadgs::systems::backward::backward_shared_motion;
-use tadgs::systems::{TrainSet, training_schedule};
 use tadgs::train::{Trainer, attach_motion_weights_now, insert_resources, spawn_initial_gaussians};
 
 const BASES: usize = 4;
@@ -133,21 +132,14 @@ fn snapshot(
 #[test]
 fn densification_hands_the_weights_to_the_children() {
     let (mut config, dataset) = tiny_scene(true);
-    config.densify.from_iter = 0;
-    config.densify.interval = 10;
-    config.densify.grad_threshold = 1e-9;
-    config.densify.tat = false;
+    densify_everything_every_ten(&mut config.densify);
     let mut world = World::new();
     insert_resources(&mut world, &config, dataset).expect("CPU backend");
     spawn_initial_gaussians(&mut world, &config).expect("random points initialise");
     attach_motion_weights_now(&mut world);
     split_at_median_scale(&mut world);
     world.init_resource::<Before>();
-    let mut schedule = training_schedule();
-    schedule.add_systems(snapshot.after(TrainSet::Adam).before(TrainSet::Densify));
-    for _ in 0..10 {
-        schedule.run(&mut world);
-    }
+    run_to_first_densification(&mut world, snapshot);
     let report = world.resource::<TrainState>().last_densify;
     assert!(report.cloned > 0 && report.split > 0, "{report:?}");
 
