@@ -17,7 +17,7 @@ use rand_distr::StandardNormal;
 
 use crate::components::*;
 use crate::data::{Camera, Dataset};
-use crate::gpu::{GpuError, GpuTraining};
+use crate::gpu::{GpuError, GpuTraining, profile};
 use crate::io::image::Image;
 use crate::model::deform::{FOURIER_TERMS, logit};
 use crate::model::sh::rgb_to_sh_dc;
@@ -191,6 +191,21 @@ pub struct BenchReport {
     pub component_bytes: usize,
     /// Heap bytes per Gaussian of the per-iteration scratch buffers after warm-up.
     pub scratch_bytes: f64,
+    /// Device time per kernel of the GPU stages, with [`profile`] on (else empty).
+    pub kernels: Vec<KernelRow>,
+}
+
+/// One kernel's device time within a GPU stage of [`BenchReport`], per repeat.
+#[derive(Clone, Debug)]
+pub struct KernelRow {
+    /// The stage that dispatched it.
+    pub stage: &'static str,
+    /// The kernel ("shader/entry point").
+    pub kernel: String,
+    /// Dispatches per repeat.
+    pub passes: f64,
+    /// Mean device time per repeat, milliseconds.
+    pub ms: f64,
 }
 
 /// Heap bytes held by the splatting stage's buffers.
@@ -237,9 +252,10 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Wall and CPU milliseconds of each stage, in the order first recorded.
+/// Wall and CPU milliseconds of each stage, in the order first recorded, and the kernel
+/// times of the GPU stages summed over the repeats.
 #[derive(Default)]
-struct Samples(Vec<(&'static str, Vec<f64>, Vec<f64>)>);
+struct Samples(Vec<(&'static str, Vec<f64>, Vec<f64>)>, Vec<KernelRow>);
 
 impl Samples {
     fn record(&mut self, stage: &'static str, (ms, cpu): (f64, f64)) {
@@ -264,6 +280,8 @@ impl Samples {
         stage: &'static str,
         f: impl FnOnce(&mut World) -> bevy_ecs::error::Result,
     ) -> Result<(), GpuError> {
+        // Drop the passes of earlier work (the profile holds only this stage's).
+        profile::take(world.resource::<GpuTraining>().context())?;
         let mut result = Ok(());
         let time = time_ms(|| {
             result = match f(world) {
@@ -272,7 +290,39 @@ impl Samples {
             };
         });
         self.record(stage, time);
-        result
+        result?;
+        for kernel in profile::take(world.resource::<GpuTraining>().context())? {
+            match self
+                .1
+                .iter_mut()
+                .find(|row| row.stage == stage && row.kernel == kernel.kernel)
+            {
+                Some(row) => {
+                    row.passes += kernel.passes as f64;
+                    row.ms += kernel.ms;
+                }
+                None => self.1.push(KernelRow {
+                    stage,
+                    kernel: kernel.kernel,
+                    passes: kernel.passes as f64,
+                    ms: kernel.ms,
+                }),
+            }
+        }
+        Ok(())
+    }
+
+    /// The kernel rows as means over `repeats`.
+    fn kernel_means(&self, repeats: usize) -> Vec<KernelRow> {
+        let per = |v: f64| v / repeats as f64;
+        self.1
+            .iter()
+            .map(|row| KernelRow {
+                passes: per(row.passes),
+                ms: per(row.ms),
+                ..row.clone()
+            })
+            .collect()
     }
 
     fn medians(self) -> Vec<StageTime> {
@@ -452,6 +502,7 @@ pub fn time_world(mut world: World, label: &str, repeats: usize) -> Result<Bench
     let gaussians = world.query::<&Position>().iter(&world).count();
     let sh_degree = world.resource::<TrainState>().sh_degree;
     let scratch = scratch_bytes(world.resource::<SplatBuffers>());
+    let kernels = samples.kernel_means(repeats);
     Ok(BenchReport {
         label: label.to_string(),
         iteration,
@@ -467,6 +518,7 @@ pub fn time_world(mut world: World, label: &str, repeats: usize) -> Result<Bench
         stages: samples.medians(),
         component_bytes: gaussian_bytes(world.resource::<Settings>().model.sh_degree),
         scratch_bytes: scratch as f64 / gaussians.max(1) as f64,
+        kernels,
     })
 }
 
@@ -513,6 +565,25 @@ impl BenchReport {
             self.scratch_bytes,
             self.component_bytes as f64 + self.scratch_bytes
         );
+        if !self.kernels.is_empty() {
+            out += &self.kernel_lines();
+        }
+        out
+    }
+
+    /// The device time per kernel of each GPU stage.
+    fn kernel_lines(&self) -> String {
+        let mut out = format!(
+            "\nGPU kernels (device time from timestamp queries, mean per repeat):\n\
+             {:<32} {:<36} {:>7} {:>10}\n",
+            "stage", "kernel", "passes", "ms"
+        );
+        for row in &self.kernels {
+            out += &format!(
+                "{:<32} {:<36} {:>7.1} {:>10.2}\n",
+                row.stage, row.kernel, row.passes, row.ms
+            );
+        }
         out
     }
 

@@ -89,6 +89,104 @@ fn bench_times_the_gpu_resident_stages() {
     );
 }
 
+/// `--kernels` adds each GPU stage's device time per kernel: the blending kernels appear under
+/// their stages, every time is finite and not negative, and a stage's kernels take no longer
+/// than the stage's wall time.
+#[test]
+fn bench_kernels_times_each_gpu_kernel() {
+    if gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(true)).is_none() {
+        return;
+    }
+    let args = [
+        "--backend",
+        "gpu",
+        "--kernels",
+        "--gaussians",
+        "500",
+        "--size",
+        "64x36",
+        "--repeats",
+        "2",
+    ];
+    let text = bench(&args);
+    let table = text
+        .split("GPU kernels (device time from timestamp queries")
+        .nth(1)
+        .unwrap_or_else(|| panic!("a kernel table in:\n{text}"));
+    let stage_ms = |stage: &str| -> f64 {
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(&format!("{stage} ")))
+            .unwrap_or_else(|| panic!("stage {stage:?} in:\n{text}"));
+        line[stage.len()..]
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let forward_stage = "GPU deform … blend, image back";
+    let backward_stage = "GPU backward + gradient check";
+    let mut sums = [0.0f64; 2];
+    let mut kernels = Vec::new();
+    for line in table.lines().skip(2).filter(|l| !l.trim().is_empty()) {
+        let stage = [
+            forward_stage,
+            backward_stage,
+            "GPU adam",
+            "GPU densification statistics",
+        ]
+        .into_iter()
+        .find(|s| line.starts_with(s))
+        .unwrap_or_else(|| panic!("a stage name starts {line:?}"));
+        let fields: Vec<&str> = line[stage.len()..].split_whitespace().collect();
+        let ms: f64 = fields[2].parse().unwrap();
+        assert!(ms.is_finite() && ms >= 0.0, "{line}");
+        if stage == forward_stage {
+            sums[0] += ms;
+        } else if stage == backward_stage {
+            sums[1] += ms;
+        }
+        kernels.push((stage, fields[0].to_string()));
+    }
+    assert!(
+        kernels.contains(&(forward_stage, "raster_forward/forward".to_string())),
+        "{table}"
+    );
+    assert!(
+        kernels
+            .iter()
+            .any(|(s, k)| *s == backward_stage && k.starts_with("raster_backward")),
+        "{table}"
+    );
+    assert!(kernels.iter().any(|(s, _)| *s == "GPU adam"), "{table}");
+    // Medians against means: allow a little for the spread of two repeats.
+    assert!(sums[0] <= 1.5 * stage_ms(forward_stage) + 1.0, "{text}");
+    assert!(sums[1] <= 1.5 * stage_ms(backward_stage) + 1.0, "{text}");
+}
+
+/// `--kernels` times GPU kernels only: with the CPU backend it is refused.
+#[test]
+fn bench_kernels_needs_the_gpu_backend() {
+    let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
+        .args([
+            "bench",
+            "--kernels",
+            "--gaussians",
+            "100",
+            "--size",
+            "32x32",
+        ])
+        .output()
+        .expect("the tadgs binary runs");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--kernels times the GPU kernels: give --backend gpu"),
+        "{err}"
+    );
+}
+
 fn demo_scene() -> String {
     format!("{}/scenes/demo.ron", env!("CARGO_MANIFEST_DIR"))
 }

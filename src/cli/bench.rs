@@ -40,6 +40,10 @@ pub struct BenchArgs {
     /// until the device has finished it).
     #[arg(long, value_parser = ["cpu", "gpu"], default_value = "cpu")]
     pub backend: String,
+    /// With --backend gpu: also time every GPU kernel (timestamp queries, where the adapter
+    /// offers them) and print each stage's device time per kernel.
+    #[arg(long)]
+    pub kernels: bool,
 }
 
 /// `tadgs bench`: one table per (Gaussians, size) pair of the benchmark scene, or one for the
@@ -49,13 +53,19 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     if !args.overrides.is_empty() && args.scene.is_none() && args.checkpoint.is_none() {
         bail!("--set changes a scene's settings: give --scene FILE.ron or --checkpoint DIR");
     }
+    if args.kernels {
+        if backend != BackendKind::Gpu {
+            bail!("--kernels times the GPU kernels: give --backend gpu");
+        }
+        tadgs::gpu::profile::enable();
+    }
     println!(
         "CPU: {} threads, SIMD level: {}",
         rayon::current_num_threads(),
         tadgs::raster::simd_level().name()
     );
     if args.scene.is_some() || args.checkpoint.is_some() {
-        println!("\n{}", real_scene(args, backend)?.table());
+        print_report(args, &real_scene(args, backend)?);
         return Ok(());
     }
     let sizes = args
@@ -65,10 +75,21 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     for &n in &args.gaussians {
         for &(w, h) in &sizes {
-            println!("\n{}", run(n, w, h, args.repeats, backend)?.table());
+            print_report(args, &run(n, w, h, args.repeats, backend)?);
         }
     }
     Ok(())
+}
+
+/// Prints `report`, and why the kernel times are missing where --kernels asked for them.
+fn print_report(args: &BenchArgs, report: &BenchReport) {
+    println!("\n{}", report.table());
+    if args.kernels && report.kernels.is_empty() {
+        eprintln!(
+            "--kernels: no kernel times, the adapter offers no timestamp queries \
+             (wgpu feature TIMESTAMP_QUERY)"
+        );
+    }
 }
 
 /// A `WxH` image size.

@@ -332,13 +332,14 @@ impl GpuDeformer {
     /// shares its device).
     pub fn with_context(gpu: GpuContext) -> Self {
         let device = &gpu.device;
-        let pipeline = |label: &str, source: &str| {
-            let [pipeline] = super::kernel::pipelines(device, label, source, [label]);
+        // Labelled by shader file, so kernel profiles name them unambiguously.
+        let pipeline = |label: &str, source: &str, entry: &str| {
+            let [pipeline] = super::kernel::pipelines(device, label, source, [entry]);
             pipeline
         };
-        let deform = pipeline("deform", DEFORM_WGSL);
-        let project = pipeline("project", PROJECT_WGSL);
-        let backward = pipeline("backward", BACKWARD_WGSL);
+        let deform = pipeline("deform", DEFORM_WGSL, "deform");
+        let project = pipeline("project", PROJECT_WGSL, "project");
+        let backward = pipeline("param_backward", BACKWARD_WGSL, "backward");
         use wgpu::BufferUsages as U;
         let storage = U::STORAGE | U::COPY_DST | U::COPY_SRC;
         let buffer = |label| GrowBuffer::new(device, label, storage);
@@ -760,12 +761,10 @@ fn dispatch(
 ) {
     let groups = (count as u32).div_ceil(WORKGROUP);
     let across = groups.min(MAX_GROUPS);
-    let down = groups.div_ceil(across.max(1));
-    if groups == 0 {
-        return;
-    }
-    let mut pass = encoder.begin_compute_pass(&Default::default());
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, bind_group, &[]);
-    pass.dispatch_workgroups(across, down, 1);
+    super::kernel::dispatch_grid(
+        encoder,
+        pipeline,
+        bind_group,
+        (across, groups.div_ceil(across.max(1))),
+    );
 }

@@ -33,14 +33,21 @@ pub(crate) fn pipelines<const N: usize>(
         source: wgpu::ShaderSource::Wgsl(source.into()),
     });
     entries.map(|entry| {
-        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(entry),
             layout: None,
             module: &module,
             entry_point: Some(entry),
             compilation_options: Default::default(),
             cache: None,
-        })
+        });
+        let name = if label == entry {
+            entry.to_string()
+        } else {
+            format!("{label}/{entry}")
+        };
+        super::profile::register(device, &pipeline, name);
+        pipeline
     })
 }
 
@@ -83,10 +90,29 @@ pub(crate) fn dispatch(
         return;
     }
     let across = groups.min(DISPATCH_WIDTH.load(Ordering::Relaxed));
-    let mut pass = encoder.begin_compute_pass(&Default::default());
+    dispatch_grid(
+        encoder,
+        pipeline,
+        bind_group,
+        (across, groups.div_ceil(across)),
+    );
+}
+
+/// Records one compute pass of `pipeline` over a grid of (x, y) workgroups (nothing when
+/// either is 0), timed per kernel when [`super::profile`] is on.
+pub(crate) fn dispatch_grid(
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    bind_group: &wgpu::BindGroup,
+    (x, y): (u32, u32),
+) {
+    if x == 0 || y == 0 {
+        return;
+    }
+    let mut pass = super::profile::begin_pass(encoder, pipeline);
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, bind_group, &[]);
-    pass.dispatch_workgroups(across, groups.div_ceil(across), 1);
+    pass.dispatch_workgroups(x, y, 1);
 }
 
 /// Workgroups of [`GROUP_SIZE`] invocations that cover `threads` invocations.

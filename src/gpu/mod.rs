@@ -26,6 +26,7 @@ mod adam;
 mod deform;
 mod kernel;
 mod pipeline;
+pub mod profile;
 mod raster;
 mod scan;
 mod sort;
@@ -105,7 +106,8 @@ pub struct GpuContext {
 impl GpuContext {
     /// Opens the preferred adapter (`WGPU_BACKEND` and `WGPU_POWER_PREF` choose, as in wgpu),
     /// with the adapter's own limits so large scenes fit, and with SHADER_FLOAT32_ATOMIC and
-    /// SUBGROUP when `float_atomics` is asked for and the adapter offers both.
+    /// SUBGROUP when `float_atomics` is asked for and the adapter offers both, and with
+    /// TIMESTAMP_QUERY when [`profile::enable`] was called and the adapter offers it.
     pub fn new(float_atomics: bool) -> Result<Self, GpuError> {
         let descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         if descriptor.backends.is_empty() {
@@ -125,11 +127,15 @@ impl GpuContext {
         // The adapter's own limits: the largest buffers and the most bindings it offers.
         let required_limits = adapter.limits();
         let fast = FLOAT_ATOMIC_FEATURES;
-        let required_features = if float_atomics && adapter.features().contains(fast) {
+        let mut required_features = if float_atomics && adapter.features().contains(fast) {
             fast
         } else {
             wgpu::Features::empty()
         };
+        let timestamps = wgpu::Features::TIMESTAMP_QUERY;
+        if profile::enabled() && adapter.features().contains(timestamps) {
+            required_features |= timestamps;
+        }
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("tadgs"),
             required_limits,

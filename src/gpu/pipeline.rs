@@ -119,6 +119,11 @@ impl GpuTraining {
         Ok(Self::with_context(GpuContext::new(true)?))
     }
 
+    /// The device the stages run on.
+    pub fn context(&self) -> &GpuContext {
+        &self.gpu
+    }
+
     /// Builds every stage on one open device.
     pub fn with_context(gpu: GpuContext) -> Self {
         let device = &gpu.device;

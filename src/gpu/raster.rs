@@ -3,6 +3,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use super::kernel::dispatch_grid;
 use super::{FLOAT_ATOMIC_FEATURES, GpuContext, GpuError, GrowBuffer};
 use crate::raster::{RenderOutput, Splat, SplatGrad, TileBins, min_power};
 
@@ -289,7 +290,7 @@ impl GpuRasterizer {
             ],
         );
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        dispatch(&mut encoder, &self.forward, &bind_group, self.tiles);
+        dispatch_grid(&mut encoder, &self.forward, &bind_group, self.tiles);
         encoder.copy_buffer_to_buffer(&self.rgba.buffer, 0, &self.staging.buffer, 0, rgba_bytes);
         gpu.queue.submit([encoder.finish()]);
         gpu.read_back(&self.staging.buffer, rgba_bytes, &mut self.host_rgba)?;
@@ -392,7 +393,7 @@ impl GpuRasterizer {
                 encoder.clear_buffer(&self.splat_grads.buffer, 0, Some(grad_bytes));
             }
             let backward = bind(gpu, &self.backward, &bindings);
-            dispatch(&mut encoder, &self.backward, &backward, self.tiles);
+            dispatch_grid(&mut encoder, &self.backward, &backward, self.tiles);
         } else {
             bindings.push(&self.entry_grads);
             // Entries behind every pixel's last contributor get no share: they stay zero.
@@ -400,7 +401,7 @@ impl GpuRasterizer {
                 encoder.clear_buffer(&self.entry_grads.buffer, 0, Some(entry_bytes));
             }
             let backward = bind(gpu, &self.backward, &bindings);
-            dispatch(&mut encoder, &self.backward, &backward, self.tiles);
+            dispatch_grid(&mut encoder, &self.backward, &backward, self.tiles);
             let reduce = bind(
                 gpu,
                 &self.reduce,
@@ -413,7 +414,7 @@ impl GpuRasterizer {
             );
             let groups = (count as u32).div_ceil(REDUCE_GROUP);
             let across = groups.min(MAX_GROUPS);
-            dispatch(
+            dispatch_grid(
                 &mut encoder,
                 &self.reduce,
                 &reduce,
@@ -443,20 +444,4 @@ fn bind(
         layout: &pipeline.get_bind_group_layout(0),
         entries: &entries,
     })
-}
-
-/// Records one compute dispatch of `groups` (x, y) workgroups (none when either is 0).
-fn dispatch(
-    encoder: &mut wgpu::CommandEncoder,
-    pipeline: &wgpu::ComputePipeline,
-    bind_group: &wgpu::BindGroup,
-    groups: (u32, u32),
-) {
-    if groups.0 == 0 || groups.1 == 0 {
-        return;
-    }
-    let mut pass = encoder.begin_compute_pass(&Default::default());
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, bind_group, &[]);
-    pass.dispatch_workgroups(groups.0, groups.1, 1);
 }
