@@ -5,15 +5,19 @@ use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::{
-    Adam, AdamClock, Color, ColorRest, Fourier, Grad, MotionWeights, Opacity, Param, Position,
-    Rotation, Scale, SplatSlot, Temporal, each_param,
+    Adam, AdamClock, Color, ColorRest, Deformed, Fourier, Grad, MotionWeights, Opacity, Param,
+    Position, Rotation, Scale, SplatSlot, Temporal, each_param,
 };
 use crate::model::deform::FOURIER_TERMS;
 use crate::model::exposure::Exposure;
+use crate::model::project::drawable;
 use crate::model::sh::{SH_COEFFS, coeff_count};
 use crate::model::shared_motion::MAX_MOTION_BASES;
-use crate::resources::{CameraExposures, Settings, SharedMotion, SplatBuffers, TrainState};
+use crate::resources::{
+    CameraExposures, DeformEveryGaussian, Settings, SharedMotion, SplatBuffers, TrainState,
+};
 use crate::scene::LearningRates;
+use crate::systems::deform::faded_geometry_read;
 use crate::systems::prefetch::{RowsAhead, prefetch};
 
 pub use crate::model::adam::{BETA1, BETA2, EPSILON};
@@ -31,6 +35,11 @@ pub trait ParamGroup: Param {
     fn active_values(_sh_degree: u32) -> usize {
         std::mem::size_of::<Self>() / std::mem::size_of::<f32>()
     }
+
+    /// Whether `train.deferred_adam` defers this group's momentum steps. The groups that
+    /// decide whether a view can draw a Gaussian (its σ(t)) are stepped densely, so that the
+    /// others can be brought up to date before it is drawn ([`catch_up_drawable`]).
+    const DEFERRED: bool = true;
 }
 
 impl ParamGroup for Position {
@@ -53,6 +62,8 @@ impl ParamGroup for Fourier {
 }
 
 impl ParamGroup for Temporal {
+    const DEFERRED: bool = false;
+
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
         // The temporal centre stays at its anchor unless its rate is set.
         Self {
@@ -63,6 +74,8 @@ impl ParamGroup for Temporal {
 }
 
 impl ParamGroup for Opacity {
+    const DEFERRED: bool = false;
+
     fn learning_rates(lr: &LearningRates, _: f32) -> Self {
         Self { logit: lr.opacity }
     }
@@ -189,37 +202,20 @@ pub fn adam_step<P: ParamGroup>(
     mut params: Query<GroupState<P>>,
 ) {
     let iteration = state.iteration;
-    let rates_at = |iteration: u32| {
-        let lr = &settings.train.rates_at(iteration);
-        P::learning_rates(
-            lr,
-            position_lr(lr, iteration, settings.train.iterations, settings.extent),
-        )
-    };
-    let rates = rates_at(iteration);
+    let rates = rates_at::<P>(&settings, iteration);
     let rates = &rates.values()[..P::active_values(state.sh_degree)];
     let bias = BiasCorrection::after(iteration.max(1) as i32);
     // Without the splatting stage's buffers (a world that only optimises), every Gaussian
     // counts as seen.
     let train = &settings.train;
+    let defer = train.deferred_adam && P::DEFERRED;
     let reached = buffers
         .as_deref()
-        .filter(|_| train.visible_adam || train.deferred_adam)
+        .filter(|_| train.visible_adam || defer)
         .map(|b| b.gradient_reached.as_slice());
     let deferred = match reached {
-        Some(_) if train.deferred_adam => {
-            // The sums run from the last catch-up; fresh ones (a new or resumed run) start there.
-            let start = last_catch_up(&settings, iteration);
-            if deferred.width() != P::FLOATS
-                || deferred.start() != start
-                || deferred.end() >= iteration
-            {
-                *deferred = DeferredSums::new(start, P::FLOATS);
-            }
-            while deferred.end() < iteration {
-                let next = deferred.end() + 1;
-                deferred.push(rates_at(next).values());
-            }
+        Some(_) if defer => {
+            sums_through::<P>(&mut deferred, &settings, iteration);
             Some((&*deferred, catches_up(&settings, iteration)))
         }
         _ => None,
@@ -238,22 +234,16 @@ pub fn adam_step<P: ParamGroup>(
             let floats = P::FLOATS;
             let mut coefficients = [0.0; MAX_GROUP_FLOATS];
             let coefficients = &mut coefficients[..rates.len()];
-            let catch_up = deferred.is_some_and(|(_, catch_up)| catch_up);
+            let all_catch_up = deferred.is_some_and(|(_, all)| all);
             let mut step_row = |values: &mut [f32], moments: &mut [f32], i: usize, seen: bool| {
                 let x = &mut values[i * floats..(i + 1) * floats];
                 let mv = &mut moments[2 * i * floats..2 * (i + 1) * floats];
                 if let Some((sums, _)) = deferred {
-                    // Up to date through the last step it had (never before the sums start).
-                    let last = clocks.map_or(0, |c| c[i].0).clamp(sums.start(), iteration);
+                    // A Gaussian drawn this iteration was brought up to date before
+                    // (`catch_up_drawable`), so `last` is the previous iteration.
+                    let last = clocks.map_or(0, |c| c[i].0);
                     let through = if seen { iteration - 1 } else { iteration };
-                    if last < through {
-                        sums.coefficients(last, through, coefficients);
-                        let (decay, epsilon) = (sums.decay(through - last), sums.epsilon(last));
-                        let (m, v) = mv.split_at_mut(floats);
-                        for (((x, m), v), &c) in x.iter_mut().zip(m).zip(v).zip(&*coefficients) {
-                            deferred_update(x, m, v, c, epsilon, decay);
-                        }
-                    }
+                    catch_up(x, mv, sums, last, through, coefficients);
                 }
                 if seen {
                     let g = &grads[i * floats..(i + 1) * floats];
@@ -266,7 +256,7 @@ pub fn adam_step<P: ParamGroup>(
             let mut ahead = RowsAhead::default();
             for (i, slot) in slots.iter().enumerate() {
                 let seen = reached.get(slot.0 as usize).is_some_and(|&r| r);
-                if !seen && !catch_up {
+                if !seen && !all_catch_up {
                     continue;
                 }
                 prefetch(&values[i * floats..(i + 1) * floats]);
@@ -280,6 +270,152 @@ pub fn adam_step<P: ParamGroup>(
                 step_row(values, moments, row, seen);
             }
         });
+}
+
+/// The learning rates of group `P` at `iteration`.
+fn rates_at<P: ParamGroup>(settings: &Settings, iteration: u32) -> P {
+    let lr = &settings.train.rates_at(iteration);
+    P::learning_rates(
+        lr,
+        position_lr(lr, iteration, settings.train.iterations, settings.extent),
+    )
+}
+
+/// Brings `sums` (one system's, for group `P`) through `iteration`: they run from the last
+/// catch-up, and fresh ones (a new or resumed run) start there.
+fn sums_through<P: ParamGroup>(sums: &mut DeferredSums, settings: &Settings, iteration: u32) {
+    let start = last_catch_up(settings, iteration);
+    if sums.width() != P::FLOATS || sums.start() != start || sums.end() > iteration {
+        *sums = DeferredSums::new(start, P::FLOATS);
+    }
+    while sums.end() < iteration {
+        let next = sums.end() + 1;
+        sums.push(rates_at::<P>(settings, next).values());
+    }
+}
+
+/// Applies to one Gaussian's values `x` and moments `mv` (first then second, as in
+/// [`Adam`]) the momentum steps of dense Adam after step `last` through `through`, where
+/// `last` is clamped into the span of `sums` (which must reach `through`); only the first
+/// `coefficients.len()` values (the active ones) move.
+#[inline]
+fn catch_up(
+    x: &mut [f32],
+    mv: &mut [f32],
+    sums: &DeferredSums,
+    last: u32,
+    through: u32,
+    coefficients: &mut [f32],
+) {
+    let last = last.clamp(sums.start(), through);
+    if last == through {
+        return;
+    }
+    sums.coefficients(last, through, coefficients);
+    let (decay, epsilon) = (sums.decay(through - last), sums.epsilon(last));
+    let (m, v) = mv.split_at_mut(x.len());
+    for (((x, m), v), &c) in x.iter_mut().zip(m).zip(v).zip(&*coefficients) {
+        deferred_update(x, m, v, c, epsilon, decay);
+    }
+}
+
+/// Whether a Gaussian whose σ(t) at the view's time is `opacity` ([`Deformed`] after
+/// [`crate::systems::deform::fade`]) has its parameters read this iteration.
+fn read_now(opacity: f32, every_gaussian: bool) -> bool {
+    every_gaussian || drawable(opacity)
+}
+
+/// Under `train.deferred_adam`, before the deformation: brings group `P` of every Gaussian
+/// the view can draw up to date through the previous iteration, by the momentum steps of
+/// dense Adam it missed while it got no gradient. Its gradient is then taken at the
+/// parameters dense Adam would have given it, so that training follows dense Adam's
+/// trajectory up to rounding. Which Gaussians those are is decided by σ(t) alone
+/// ([`crate::systems::deform::fade`]), whose groups (opacity, temporal) are stepped densely;
+/// where a stage reads faded Gaussians' geometry too, every Gaussian is brought up to date.
+#[allow(clippy::type_complexity)]
+pub fn catch_up_drawable<P: ParamGroup>(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    every_gaussian: Option<Res<DeformEveryGaussian>>,
+    mut sums: Local<DeferredSums>,
+    mut params: Query<(&mut P, &mut Adam<P>, &AdamClock, &Deformed)>,
+) {
+    let through = state.iteration.saturating_sub(1);
+    if !P::DEFERRED || through == 0 {
+        return;
+    }
+    sums_through::<P>(&mut sums, &settings, through);
+    let sums = &*sums;
+    let every = faded_geometry_read(&settings, every_gaussian.is_some());
+    let floats = P::FLOATS;
+    let active = P::active_values(state.sh_degree);
+    params
+        .contiguous_par_iter_mut()
+        .expect("parameter components are stored in tables, so the query is dense")
+        .for_each(|(mut values, mut moments, clocks, deformed)| {
+            let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
+            let moments: &mut [f32] = bytemuck::cast_slice_mut(&mut moments[..]);
+            let mut coefficients = [0.0; MAX_GROUP_FLOATS];
+            let coefficients = &mut coefficients[..active];
+            let mut row = |values: &mut [f32], moments: &mut [f32], i: usize, last: u32| {
+                let x = &mut values[i * floats..(i + 1) * floats];
+                let mv = &mut moments[2 * i * floats..2 * (i + 1) * floats];
+                catch_up(x, mv, sums, last, through, coefficients);
+            };
+            // The rows lie scattered over the table: each is prefetched a few rows ahead of
+            // its update, as in `adam_step`.
+            let mut ahead = RowsAhead::default();
+            for (i, (clock, out)) in clocks.iter().zip(deformed).enumerate() {
+                if clock.0 >= through || !read_now(out.opacity, every) {
+                    continue;
+                }
+                prefetch(&values[i * floats..(i + 1) * floats]);
+                prefetch(&moments[2 * i * floats..2 * (i + 1) * floats]);
+                if let Some((i, last)) = ahead.push(i, clock.0) {
+                    row(values, moments, i, last);
+                }
+            }
+            while let Some((i, last)) = ahead.pop() {
+                row(values, moments, i, last);
+            }
+        });
+}
+
+/// After [`catch_up_drawable`]: the Gaussians it brought up to date are so through the
+/// previous iteration.
+pub fn clock_drawable(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    every_gaussian: Option<Res<DeformEveryGaussian>>,
+    mut clocks: Query<(&mut AdamClock, &Deformed)>,
+) {
+    let through = state.iteration.saturating_sub(1);
+    let every = faded_geometry_read(&settings, every_gaussian.is_some());
+    clocks.par_iter_mut().for_each(|(mut clock, out)| {
+        if clock.0 < through && read_now(out.opacity, every) {
+            clock.0 = through;
+        }
+    });
+}
+
+/// The systems that bring the Gaussians a view can draw up to date under
+/// `train.deferred_adam`, for the Deform stage before [`crate::systems::deform::deform`]:
+/// σ(t) of every Gaussian ([`crate::systems::deform::fade`]), [`catch_up_drawable`] for
+/// every parameter group, then [`clock_drawable`].
+pub fn catch_up_systems() -> ScheduleConfigs<ScheduleSystem> {
+    macro_rules! catch_ups {
+        ($($group:ty,)*) => {
+            ($(catch_up_drawable::<$group>,)*)
+        };
+    }
+    (
+        crate::systems::deform::fade,
+        each_param!(catch_ups),
+        catch_up_drawable::<MotionWeights>.run_if(resource_exists::<SharedMotion>),
+        clock_drawable,
+    )
+        .chain()
+        .run_if(deferring)
 }
 
 /// The most values a parameter group holds per Gaussian (the higher SH bands: 45).

@@ -4,10 +4,11 @@ use bevy_ecs::prelude::*;
 use glam::Vec3;
 
 use crate::components::{
-    Deformed, MotionWeights, ParamRefs, TimeWindow, WarpedTime, sh_coefficients,
+    Deformed, MotionWeights, Opacity, ParamRefs, Temporal, TimeWindow, WarpedTime, sh_coefficients,
 };
 use crate::model::deform::{
-    fourier_offset, rotation_at, scale_at, scale_velocity, temporal_opacity, window_factor,
+    TemporalOpacity, fourier_offset, rotation_at, scale_at, scale_velocity, temporal_opacity,
+    window_factor,
 };
 use crate::model::project::drawable;
 use crate::model::sh::sh_to_rgb;
@@ -58,8 +59,7 @@ pub fn deform(
             mut out,
         )| {
             let dtw = warped.dtw;
-            let opacity = temporal_opacity(opacity_model, opacity.logit, temporal.scale, dtw)
-                * window.map_or(1.0, |w| window_factor(w, time));
+            let opacity = opacity_at(opacity_model, opacity, temporal, warped, window, time);
             if skip_faded && !drawable(opacity) {
                 *out = Deformed::faded(opacity);
                 return;
@@ -79,4 +79,42 @@ pub fn deform(
             };
         },
     );
+}
+
+/// σ(t) of one Gaussian at the sampled time `time` (its warped offset in `warped`), times its
+/// segment window where it has one.
+#[inline]
+fn opacity_at(
+    model: TemporalOpacity,
+    opacity: &Opacity,
+    temporal: &Temporal,
+    warped: &WarpedTime,
+    window: Option<&TimeWindow>,
+    time: f32,
+) -> f32 {
+    temporal_opacity(model, opacity.logit, temporal.scale, warped.dtw)
+        * window.map_or(1.0, |w| window_factor(w, time))
+}
+
+/// Writes every Gaussian's σ(t) at the sampled time into its [`Deformed`] (as
+/// [`Deformed::faded`]), ahead of [`deform`], for the systems that must know which Gaussians
+/// the view can draw before their parameters are read: `train.deferred_adam` brings those up
+/// to date first ([`crate::systems::adam::catch_up_drawable`]).
+pub fn fade(
+    settings: Res<Settings>,
+    sample: Res<ViewSample>,
+    mut gaussians: Query<(
+        &Opacity,
+        &Temporal,
+        &WarpedTime,
+        Option<&TimeWindow>,
+        &mut Deformed,
+    )>,
+) {
+    let (model, time) = (settings.opacity, sample.time);
+    gaussians
+        .par_iter_mut()
+        .for_each(|(opacity, temporal, warped, window, mut out)| {
+            *out = Deformed::faded(opacity_at(model, opacity, temporal, warped, window, time));
+        });
 }

@@ -144,6 +144,13 @@ impl BackendPlugin for CpuBackend {
 
     fn add_update_systems(&self, schedule: &mut Schedule) {
         use TrainSet::*;
+        // Training only (not in render schedules): deferred Adam's catch-up before drawing.
+        schedule.add_systems(
+            adam::catch_up_systems()
+                .run_if(resident::on_cpu)
+                .in_set(Deform)
+                .before(deform::deform),
+        );
         schedule.add_systems(adam::adam_systems().run_if(resident::on_cpu).in_set(Adam));
         schedule.add_systems(
             densify::accumulate_stats

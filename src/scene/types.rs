@@ -642,10 +642,10 @@ pub struct TrainConfig {
     pub visible_adam: bool,
     /// Adam steps only the Gaussians that received a gradient, like `visible_adam`, but keeps
     /// dense Adam's trajectory: the momentum steps a Gaussian missed are applied in one update
-    /// when it next receives a gradient, and every Gaussian's every 100 iterations, at
-    /// densification and opacity-reset steps and at the end. The parameters then equal dense
-    /// Adam's up to rounding, except that a Gaussian's gradient is taken before its missed
-    /// steps are applied. Skips the same work as `visible_adam`. CPU backend only; not with
+    /// before it is next drawn (its opacity and temporal parameters, which decide that, are
+    /// stepped densely), and to every Gaussian every 100 iterations, at densification and
+    /// opacity-reset steps and at the end. Training then follows dense Adam up to rounding
+    /// while skipping the work `visible_adam` skips. CPU backend only; not with
     /// `visible_adam`.
     pub deferred_adam: bool,
     /// Motion-smoothness regulariser: neighbouring Gaussians move alike (off by default).
