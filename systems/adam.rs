@@ -5,8 +5,8 @@ use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
 
 use crate::components::{
-    Adam, AdamClock, Color, ColorRest, Deformed, Fourier, Grad, MotionWeights, Opacity, Param,
-    Position, Rotation, Scale, SplatSlot, Temporal, each_param,
+    Adam, AdamClock, Color, ColorRest, Fourier, Grad, MotionWeights, Opacity, Param, Position,
+    Rotation, Scale, SplatSlot, Temporal, TimeWindow, WarpedTime, each_param,
 };
 use crate::model::deform::FOURIER_TERMS;
 use crate::model::exposure::Exposure;
@@ -15,9 +15,10 @@ use crate::model::sh::{SH_COEFFS, coeff_count};
 use crate::model::shared_motion::MAX_MOTION_BASES;
 use crate::resources::{
     CameraExposures, DeformEveryGaussian, Settings, SharedMotion, SplatBuffers, TrainState,
+    ViewSample,
 };
 use crate::scene::LearningRates;
-use crate::systems::deform::faded_geometry_read;
+use crate::systems::deform::{faded_geometry_read, opacity_at};
 use crate::systems::prefetch::{RowsAhead, prefetch};
 
 pub use crate::model::adam::{BETA1, BETA2, EPSILON};
@@ -319,26 +320,53 @@ fn catch_up(
     }
 }
 
-/// Whether a Gaussian whose σ(t) at the view's time is `opacity` ([`Deformed`] after
-/// [`crate::systems::deform::fade`]) has its parameters read this iteration.
-fn read_now(opacity: f32, every_gaussian: bool) -> bool {
-    every_gaussian || drawable(opacity)
+/// Marks, in [`AdamClock`]'s top bit, a Gaussian [`mark_drawable_behind`] found behind and
+/// drawable, for the catch-up systems; [`clock_drawable`] clears it in the same stage.
+const BEHIND: u32 = 1 << 31;
+
+/// Under `train.deferred_adam`, first of the catch-up before the deformation: marks each
+/// Gaussian the view can draw (its σ(t) at the view's time, from the densely stepped opacity
+/// and temporal groups; every Gaussian where a stage reads faded ones' geometry) that is not
+/// up to date through the previous iteration, by the top bit of its [`AdamClock`], so that the
+/// per-group [`catch_up_drawable`] read only the clocks.
+#[allow(clippy::type_complexity)]
+pub fn mark_drawable_behind(
+    settings: Res<Settings>,
+    state: Res<TrainState>,
+    sample: Res<ViewSample>,
+    every_gaussian: Option<Res<DeformEveryGaussian>>,
+    mut gaussians: Query<(
+        &mut AdamClock,
+        &Opacity,
+        &Temporal,
+        &WarpedTime,
+        Option<&TimeWindow>,
+    )>,
+) {
+    let through = state.iteration.saturating_sub(1);
+    let every = faded_geometry_read(&settings, every_gaussian.is_some());
+    let (model, time) = (settings.opacity, sample.time);
+    gaussians
+        .par_iter_mut()
+        .for_each(|(mut clock, opacity, temporal, warped, window)| {
+            if clock.0 < through
+                && (every || drawable(opacity_at(model, opacity, temporal, warped, window, time)))
+            {
+                clock.0 |= BEHIND;
+            }
+        });
 }
 
 /// Under `train.deferred_adam`, before the deformation: brings group `P` of every Gaussian
-/// the view can draw up to date through the previous iteration, by the momentum steps of
-/// dense Adam it missed while it got no gradient. Its gradient is then taken at the
-/// parameters dense Adam would have given it, so that training follows dense Adam's
-/// trajectory up to rounding. Which Gaussians those are is decided by σ(t) alone
-/// ([`crate::systems::deform::fade`]), whose groups (opacity, temporal) are stepped densely;
-/// where a stage reads faded Gaussians' geometry too, every Gaussian is brought up to date.
-#[allow(clippy::type_complexity)]
+/// the view can draw up to date through the previous iteration (those
+/// [`mark_drawable_behind`] marked), by the momentum steps of dense Adam it missed while it
+/// got no gradient. Its gradient is then taken at the parameters dense Adam would have given
+/// it, so that training follows dense Adam's trajectory up to rounding.
 pub fn catch_up_drawable<P: ParamGroup>(
     settings: Res<Settings>,
     state: Res<TrainState>,
-    every_gaussian: Option<Res<DeformEveryGaussian>>,
     mut sums: Local<DeferredSums>,
-    mut params: Query<(&mut P, &mut Adam<P>, &AdamClock, &Deformed)>,
+    mut params: Query<(&mut P, &mut Adam<P>, &AdamClock)>,
 ) {
     let through = state.iteration.saturating_sub(1);
     if !P::DEFERRED || through == 0 {
@@ -346,13 +374,12 @@ pub fn catch_up_drawable<P: ParamGroup>(
     }
     sums_through::<P>(&mut sums, &settings, through);
     let sums = &*sums;
-    let every = faded_geometry_read(&settings, every_gaussian.is_some());
     let floats = P::FLOATS;
     let active = P::active_values(state.sh_degree);
     params
         .contiguous_par_iter_mut()
         .expect("parameter components are stored in tables, so the query is dense")
-        .for_each(|(mut values, mut moments, clocks, deformed)| {
+        .for_each(|(mut values, mut moments, clocks)| {
             let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
             let moments: &mut [f32] = bytemuck::cast_slice_mut(&mut moments[..]);
             let mut coefficients = [0.0; MAX_GROUP_FLOATS];
@@ -365,13 +392,13 @@ pub fn catch_up_drawable<P: ParamGroup>(
             // The rows lie scattered over the table: each is prefetched a few rows ahead of
             // its update, as in `adam_step`.
             let mut ahead = RowsAhead::default();
-            for (i, (clock, out)) in clocks.iter().zip(deformed).enumerate() {
-                if clock.0 >= through || !read_now(out.opacity, every) {
+            for (i, clock) in clocks.iter().enumerate() {
+                if clock.0 & BEHIND == 0 {
                     continue;
                 }
                 prefetch(&values[i * floats..(i + 1) * floats]);
                 prefetch(&moments[2 * i * floats..2 * (i + 1) * floats]);
-                if let Some((i, last)) = ahead.push(i, clock.0) {
+                if let Some((i, last)) = ahead.push(i, clock.0 & !BEHIND) {
                     row(values, moments, i, last);
                 }
             }
@@ -382,17 +409,11 @@ pub fn catch_up_drawable<P: ParamGroup>(
 }
 
 /// After [`catch_up_drawable`]: the Gaussians it brought up to date are so through the
-/// previous iteration.
-pub fn clock_drawable(
-    settings: Res<Settings>,
-    state: Res<TrainState>,
-    every_gaussian: Option<Res<DeformEveryGaussian>>,
-    mut clocks: Query<(&mut AdamClock, &Deformed)>,
-) {
+/// previous iteration (and their marks are cleared).
+pub fn clock_drawable(state: Res<TrainState>, mut clocks: Query<&mut AdamClock>) {
     let through = state.iteration.saturating_sub(1);
-    let every = faded_geometry_read(&settings, every_gaussian.is_some());
-    clocks.par_iter_mut().for_each(|(mut clock, out)| {
-        if clock.0 < through && read_now(out.opacity, every) {
+    clocks.par_iter_mut().for_each(|mut clock| {
+        if clock.0 & BEHIND != 0 {
             clock.0 = through;
         }
     });
@@ -400,8 +421,8 @@ pub fn clock_drawable(
 
 /// The systems that bring the Gaussians a view can draw up to date under
 /// `train.deferred_adam`, for the Deform stage before [`crate::systems::deform::deform`]:
-/// σ(t) of every Gaussian ([`crate::systems::deform::fade`]), [`catch_up_drawable`] for
-/// every parameter group, then [`clock_drawable`].
+/// [`mark_drawable_behind`], [`catch_up_drawable`] for every parameter group, then
+/// [`clock_drawable`].
 pub fn catch_up_systems() -> ScheduleConfigs<ScheduleSystem> {
     macro_rules! catch_ups {
         ($($group:ty,)*) => {
@@ -409,7 +430,7 @@ pub fn catch_up_systems() -> ScheduleConfigs<ScheduleSystem> {
         };
     }
     (
-        crate::systems::deform::fade,
+        mark_drawable_behind,
         each_param!(catch_ups),
         catch_up_drawable::<MotionWeights>.run_if(resource_exists::<SharedMotion>),
         clock_drawable,

@@ -84,7 +84,7 @@ pub fn deform(
 /// σ(t) of one Gaussian at the sampled time `time` (its warped offset in `warped`), times its
 /// segment window where it has one.
 #[inline]
-fn opacity_at(
+pub(crate) fn opacity_at(
     model: TemporalOpacity,
     opacity: &Opacity,
     temporal: &Temporal,
@@ -94,27 +94,4 @@ fn opacity_at(
 ) -> f32 {
     temporal_opacity(model, opacity.logit, temporal.scale, warped.dtw)
         * window.map_or(1.0, |w| window_factor(w, time))
-}
-
-/// Writes every Gaussian's σ(t) at the sampled time into its [`Deformed`] (as
-/// [`Deformed::faded`]), ahead of [`deform`], for the systems that must know which Gaussians
-/// the view can draw before their parameters are read: `train.deferred_adam` brings those up
-/// to date first ([`crate::systems::adam::catch_up_drawable`]).
-pub fn fade(
-    settings: Res<Settings>,
-    sample: Res<ViewSample>,
-    mut gaussians: Query<(
-        &Opacity,
-        &Temporal,
-        &WarpedTime,
-        Option<&TimeWindow>,
-        &mut Deformed,
-    )>,
-) {
-    let (model, time) = (settings.opacity, sample.time);
-    gaussians
-        .par_iter_mut()
-        .for_each(|(opacity, temporal, warped, window, mut out)| {
-            *out = Deformed::faded(opacity_at(model, opacity, temporal, warped, window, time));
-        });
 }
