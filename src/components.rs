@@ -248,8 +248,10 @@ pub struct SplatSlot(pub u32);
 
 /// The iteration through which Adam has brought this Gaussian's parameters and moments up to
 /// date. Only `train.deferred_adam` reads it: there a Gaussian that received no gradient is
-/// left behind until it next does or until every Gaussian catches up (see
-/// [`crate::systems::adam::adam_step`]). A checkpoint of any other run records the iteration.
+/// left behind until the view can next draw it or until every Gaussian catches up (see
+/// [`crate::systems::adam::catch_up_drawable`] and [`crate::systems::adam::adam_step`]);
+/// within the Deform stage its top bit marks the Gaussians being caught up. A checkpoint of
+/// any other run records the iteration.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct AdamClock(pub u32);
 
