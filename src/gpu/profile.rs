@@ -53,11 +53,6 @@ pub fn enabled() -> bool {
     ENABLED.load(Ordering::Relaxed)
 }
 
-/// Whether a profiled device is open, i.e. [`take`] will return times.
-pub fn active() -> bool {
-    STATE.lock().unwrap().is_some()
-}
-
 /// Records the kernel name of `pipeline`. The first device to register one while profiling is
 /// on (and that was opened with `TIMESTAMP_QUERY`) becomes the profiled device.
 pub(crate) fn register(device: &wgpu::Device, pipeline: &wgpu::ComputePipeline, name: String) {
