@@ -116,6 +116,33 @@ pub fn benchmark_world_on(
     motion: bool,
     backend: BackendKind,
 ) -> Result<World, GpuError> {
+    benchmark_world_with(&benchmark_config(backend), n, width, height, motion)
+}
+
+/// The settings of the benchmark scene on `backend`: SH degree 0, no densification or opacity
+/// resets, everything else the defaults.
+pub fn benchmark_config(backend: BackendKind) -> SceneConfig {
+    let mut config = SceneConfig::new(
+        "bench",
+        DataSource::Synthetic(crate::data::synthetic::demo_scene()),
+    );
+    config.model.sh_degree = 0;
+    config.densify.from_iter = 0;
+    config.densify.until_iter = 0;
+    config.densify.opacity_reset_interval = 0;
+    config.train.backend = backend;
+    config
+}
+
+/// [`benchmark_world`] under the settings `config` (from [`benchmark_config`], possibly
+/// changed: `tadgs bench --set`); its data source is ignored.
+pub fn benchmark_world_with(
+    config: &SceneConfig,
+    n: usize,
+    width: u32,
+    height: u32,
+    motion: bool,
+) -> Result<World, GpuError> {
     let camera = benchmark_camera(width, height);
     let (w, h) = (width as usize, height as usize);
     let target = Image {
@@ -126,16 +153,8 @@ pub fn benchmark_world_on(
             .collect(),
     };
     let dataset = Dataset::single_camera(camera, 1, &target);
-    let mut config = SceneConfig::new(
-        "bench",
-        DataSource::Synthetic(crate::data::synthetic::demo_scene()),
-    );
-    config.model.sh_degree = 0;
-    config.densify.until_iter = 0;
-    config.densify.opacity_reset_interval = 0;
-    config.train.backend = backend;
     let mut world = World::new();
-    insert_resources(&mut world, &config, Arc::new(dataset))?;
+    insert_resources(&mut world, config, Arc::new(dataset))?;
     let gaussians = benchmark_gaussians(n, 42, motion);
     spawn_gaussians(
         &mut world,
@@ -445,15 +464,16 @@ fn time_gpu_stages(world: &mut World, samples: &mut Samples) -> Result<(), GpuEr
 }
 
 /// Times every stage of a training iteration on the benchmark scene (`repeats` runs each, the
-/// median reported), then a whole iteration and a render at a new time, on `backend`.
+/// median reported), then a whole iteration and a render at a new time, under the settings
+/// `config` (see [`benchmark_config`]).
 pub fn run(
+    config: &SceneConfig,
     n: usize,
     width: u32,
     height: u32,
     repeats: usize,
-    backend: BackendKind,
 ) -> Result<BenchReport, GpuError> {
-    let world = benchmark_world_on(n, width, height, false, backend)?;
+    let world = benchmark_world_with(config, n, width, height, false)?;
     time_world(world, "synthetic bench scene", repeats)
 }
 

@@ -42,7 +42,7 @@ pub fn init_task_pool() {
 
 /// Inserts every resource the tadgs systems read into `world`.
 ///
-/// With `backend: Gpu` this opens the GPU (see [`GpuTraining::new`]); that is the one way it
+/// With `backend: Gpu` this opens the GPU (see [`GpuTraining::open`]); that is the one way it
 /// can fail.
 pub fn insert_resources(
     world: &mut World,
@@ -105,7 +105,7 @@ pub fn insert_render_resources(
     if scene.train.backend == crate::scene::BackendKind::Gpu {
         // The whole iteration on the GPU with resident buffers; the blending-only
         // `GpuRasterizer` resource remains available to custom worlds.
-        let gpu = GpuTraining::new()?;
+        let gpu = GpuTraining::open(scene.train.gpu_float_atomics)?;
         tracing::info!("GPU backend: {}", gpu.describe());
         if gpu.is_software() {
             // A warning, so it shows under -q too: the run works but crawls.

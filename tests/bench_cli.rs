@@ -91,12 +91,61 @@ fn bench_times_the_gpu_resident_stages() {
 
 /// `--kernels` adds each GPU stage's device time per kernel: the blending kernels appear under
 /// their stages, every time is finite and not negative, and a stage's kernels take no longer
-/// than the stage's wall time.
+/// than the stage's wall time. The backward is the float-atomic kernel where the adapter
+/// offers float atomics, the portable per-tile sums and their reduction otherwise.
 #[test]
 fn bench_kernels_times_each_gpu_kernel() {
-    if gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(true)).is_none() {
+    let Some(gpu) = gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(true)) else {
+        return;
+    };
+    let atomics = gpu
+        .device
+        .features()
+        .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC | wgpu::Features::SUBGROUP);
+    let kernels = kernel_table(&[]);
+    let backward = |name: &str| kernels.contains(&(BACKWARD_STAGE, name.to_string()));
+    assert_eq!(
+        backward("raster_backward_atomic/backward"),
+        atomics,
+        "{kernels:?}"
+    );
+    assert_eq!(
+        backward("raster_backward_tiles/backward"),
+        !atomics,
+        "{kernels:?}"
+    );
+}
+
+/// `--set train.gpu_float_atomics=false` times the portable backward (per-tile sums and their
+/// reduction) even where the adapter offers float atomics, and says so under the table.
+#[test]
+fn bench_kernels_time_the_portable_backward_when_asked() {
+    if gpu::open_or_skip(|| tadgs::gpu::GpuContext::new(false)).is_none() {
         return;
     }
+    let kernels = kernel_table(&["--set", "train.gpu_float_atomics=false"]);
+    for name in ["raster_backward_tiles/backward", "raster_reduce/reduce"] {
+        assert!(
+            kernels.contains(&(BACKWARD_STAGE, name.to_string())),
+            "{name} in {kernels:?}"
+        );
+    }
+    assert!(
+        !kernels
+            .iter()
+            .any(|(_, k)| k.starts_with("raster_backward_atomic")),
+        "{kernels:?}"
+    );
+}
+
+const FORWARD_STAGE: &str = "GPU deform … blend, image back";
+const BACKWARD_STAGE: &str = "GPU backward + gradient check";
+
+/// The (stage, kernel) rows of `tadgs bench --backend gpu --kernels EXTRA` on a small scene,
+/// after checking the table's common properties (see
+/// [`bench_kernels_times_each_gpu_kernel`]) and that the GPU line names the backward's
+/// summation as the kernels do.
+fn kernel_table(extra: &[&str]) -> Vec<(&'static str, String)> {
     let args = [
         "--backend",
         "gpu",
@@ -108,7 +157,7 @@ fn bench_kernels_times_each_gpu_kernel() {
         "--repeats",
         "2",
     ];
-    let text = bench(&args);
+    let text = bench(&[&args[..], extra].concat());
     let table = text
         .split("GPU kernels (device time from timestamp queries")
         .nth(1)
@@ -125,14 +174,12 @@ fn bench_kernels_times_each_gpu_kernel() {
             .parse()
             .unwrap()
     };
-    let forward_stage = "GPU deform … blend, image back";
-    let backward_stage = "GPU backward + gradient check";
     let mut sums = [0.0f64; 2];
     let mut kernels = Vec::new();
     for line in table.lines().skip(2).filter(|l| !l.trim().is_empty()) {
         let stage = [
-            forward_stage,
-            backward_stage,
+            FORWARD_STAGE,
+            BACKWARD_STAGE,
             "GPU adam",
             "GPU densification statistics",
         ]
@@ -142,27 +189,37 @@ fn bench_kernels_times_each_gpu_kernel() {
         let fields: Vec<&str> = line[stage.len()..].split_whitespace().collect();
         let ms: f64 = fields[2].parse().unwrap();
         assert!(ms.is_finite() && ms >= 0.0, "{line}");
-        if stage == forward_stage {
+        if stage == FORWARD_STAGE {
             sums[0] += ms;
-        } else if stage == backward_stage {
+        } else if stage == BACKWARD_STAGE {
             sums[1] += ms;
         }
         kernels.push((stage, fields[0].to_string()));
     }
     assert!(
-        kernels.contains(&(forward_stage, "raster_forward/forward".to_string())),
+        kernels.contains(&(FORWARD_STAGE, "raster_forward/forward".to_string())),
         "{table}"
     );
     assert!(
         kernels
             .iter()
-            .any(|(s, k)| *s == backward_stage && k.starts_with("raster_backward")),
+            .any(|(s, k)| *s == BACKWARD_STAGE && k.starts_with("raster_backward")),
         "{table}"
     );
     assert!(kernels.iter().any(|(s, _)| *s == "GPU adam"), "{table}");
     // Medians against means: allow a little for the spread of two repeats.
-    assert!(sums[0] <= 1.5 * stage_ms(forward_stage) + 1.0, "{text}");
-    assert!(sums[1] <= 1.5 * stage_ms(backward_stage) + 1.0, "{text}");
+    assert!(sums[0] <= 1.5 * stage_ms(FORWARD_STAGE) + 1.0, "{text}");
+    assert!(sums[1] <= 1.5 * stage_ms(BACKWARD_STAGE) + 1.0, "{text}");
+    let atomic_kernel = kernels
+        .iter()
+        .any(|(_, k)| k.starts_with("raster_backward_atomic"));
+    let summation = if atomic_kernel {
+        "backward with float atomics"
+    } else {
+        "backward with per-tile sums"
+    };
+    assert!(text.contains(summation), "{summation:?} in:\n{text}");
+    kernels
 }
 
 /// `--kernels` times GPU kernels only: with the CPU backend it is refused.
@@ -249,17 +306,15 @@ fn bench_times_a_checkpoint_where_the_run_stopped() {
     assert!(text.contains("at iteration 250, SH degree 2"), "{text}");
 }
 
-/// `--set` without a scene to apply it to is refused with one line.
+/// `--set` without a scene changes the benchmark scene's settings, checked as for `train`: an
+/// unknown key is refused with one line naming it.
 #[test]
-fn bench_set_needs_a_scene() {
+fn bench_set_changes_the_benchmark_scene() {
     let out = Command::new(env!("CARGO_BIN_EXE_tadgs"))
-        .args(["bench", "--set", "train.seed=1"])
+        .args(["bench", "--set", "train.no_such_setting=1"])
         .output()
         .expect("the tadgs binary runs");
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("give --scene FILE.ron or --checkpoint DIR"),
-        "{err}"
-    );
+    assert!(err.contains("train.no_such_setting"), "{err}");
 }

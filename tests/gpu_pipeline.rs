@@ -242,14 +242,28 @@ fn compare_first_step(cpu: &mut World, gpu: &mut World) -> (f32, f32, usize) {
     (worst, worst_stats, flips)
 }
 
-/// One training iteration through the resident chain equals the CPU schedule's.
+/// One training iteration through the resident chain equals the CPU schedule's (with the
+/// float-atomic backward where the adapter offers it).
 #[test]
 fn one_resident_iteration_equals_the_cpu_schedule() {
-    let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
-        return;
-    };
+    if let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) {
+        resident_iteration_equals_the_cpu_schedule(&ctx);
+    }
+}
+
+/// The same with the portable backward (per-tile sums; `train.gpu_float_atomics: false`).
+#[test]
+fn one_resident_iteration_on_the_portable_backward_equals_the_cpu_schedule() {
+    if let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(false)) {
+        let training = GpuTraining::with_context(ctx.clone());
+        assert!(training.describe().contains("per-tile sums"));
+        resident_iteration_equals_the_cpu_schedule(&ctx);
+    }
+}
+
+fn resident_iteration_equals_the_cpu_schedule(ctx: &GpuContext) {
     let (config, dataset) = small_scene();
-    let [mut cpu, mut gpu] = trainers(&config, &dataset, &ctx);
+    let [mut cpu, mut gpu] = trainers(&config, &dataset, ctx);
     let start = Instant::now();
     cpu.step();
     let cpu_time = start.elapsed();

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Result, bail};
-use tadgs::bench::{BenchReport, run, time_world};
+use tadgs::bench::{BenchReport, benchmark_config, run, time_world};
 use tadgs::io::checkpoint::Checkpoint;
 use tadgs::scene::{BackendKind, apply_overrides};
 use tadgs::train::Trainer;
@@ -30,7 +30,9 @@ pub struct BenchArgs {
     /// the one its schedule had reached.
     #[arg(long, value_name = "DIR")]
     pub checkpoint: Option<PathBuf>,
-    /// With --scene or --checkpoint: override a scene setting, as for `train`.
+    /// Override a setting, as for `train`: of the scene or checkpoint given, else of the
+    /// benchmark scene (e.g. `train.gpu_float_atomics=false` times the GPU backend's portable
+    /// backward).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
     /// Runs per stage; the median is reported.
@@ -50,9 +52,6 @@ pub struct BenchArgs {
 /// scene or checkpoint given.
 pub fn bench(args: &BenchArgs) -> Result<()> {
     let backend = backend_kind(&args.backend);
-    if !args.overrides.is_empty() && args.scene.is_none() && args.checkpoint.is_none() {
-        bail!("--set changes a scene's settings: give --scene FILE.ron or --checkpoint DIR");
-    }
     if args.kernels {
         if backend != BackendKind::Gpu {
             bail!("--kernels times the GPU kernels: give --backend gpu");
@@ -73,9 +72,11 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         .iter()
         .map(|s| parse_size(s))
         .collect::<Result<Vec<_>>>()?;
+    let mut config = benchmark_config(backend);
+    apply_overrides(&mut config, &args.overrides)?;
     for &n in &args.gaussians {
         for &(w, h) in &sizes {
-            print_report(args, &run(n, w, h, args.repeats, backend)?);
+            print_report(args, &run(&config, n, w, h, args.repeats)?);
         }
     }
     Ok(())

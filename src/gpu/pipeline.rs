@@ -116,7 +116,13 @@ impl GpuTraining {
     /// Opens the default GPU (float atomics where offered, see [`GpuContext::new`]) and
     /// builds every stage on it.
     pub fn new() -> Result<Self, GpuError> {
-        Ok(Self::with_context(GpuContext::new(true)?))
+        Self::open(true)
+    }
+
+    /// [`GpuTraining::new`], with the float-atomic backward only if `float_atomics` and the
+    /// adapter offers it (else the portable per-tile sums; `train.gpu_float_atomics`).
+    pub fn open(float_atomics: bool) -> Result<Self, GpuError> {
+        Ok(Self::with_context(GpuContext::new(float_atomics)?))
     }
 
     /// The device the stages run on.

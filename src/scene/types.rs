@@ -654,6 +654,13 @@ pub struct TrainConfig {
     pub lr: LearningRates,
     /// Which backend renders and back-propagates.
     pub backend: BackendKind,
+    /// GPU backend: sum the raster backward's gradients with float atomics where the adapter
+    /// offers them (SHADER_FLOAT32_ATOMIC and SUBGROUP), the fast path. `false` takes the
+    /// portable path every adapter runs (per-tile partial sums and a reduction pass) even
+    /// where atomics are offered: for a driver whose float atomics misbehave, or to time one
+    /// path against the other (`tadgs bench --backend gpu --set
+    /// train.gpu_float_atomics=false`). Both give the same gradients up to rounding.
+    pub gpu_float_atomics: bool,
     /// Print an evaluation line every this many iterations (0 = only at the end).
     pub eval_interval: u32,
     /// Write a checkpoint (`<output>/checkpoint/`) every this many iterations, and always at
@@ -693,6 +700,7 @@ impl Default for TrainConfig {
             motion_smoothness: MotionSmoothness::default(),
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
+            gpu_float_atomics: true,
             eval_interval: 0,
             checkpoint_interval: 5000,
         }
