@@ -7,26 +7,36 @@
 @group(0) @binding(7) var<storage, read_write> entry_grads: array<f32>;
 
 var<workgroup> shares: array<f32, 2304>; // FIELDS × TILE_PIXELS
+var<workgroup> row_sums: array<f32, 144>; // FIELDS × TILE
 
-// Called by every invocation of the workgroup (it holds barriers).
+// Called by every invocation of the workgroup (it holds barriers). Two barriers per entry: a
+// tree over the 256 pixels would take eight, and a barrier, not an addition, is what costs.
+// Each of 144 invocations first adds one field along one pixel row of the tile, then nine
+// add up a field's 16 row sums, always in the same order.
 fn add_shares(li: u32, entry: u32, values: array<f32, FIELDS>) {
     var share = values; // a variable, so it can be indexed dynamically
     for (var field = 0u; field < FIELDS; field++) {
         shares[field * TILE_PIXELS + li] = share[field];
     }
-    for (var stride = TILE_PIXELS / 2u; stride > 0u; stride /= 2u) {
-        workgroupBarrier();
-        if li < stride {
-            for (var field = 0u; field < FIELDS; field++) {
-                let a = field * TILE_PIXELS + li;
-                shares[a] += shares[a + stride];
-            }
+    workgroupBarrier();
+    if li < FIELDS * TILE {
+        // Invocation li = field · 16 + row sums shares[field · 256 + row · 16 ..][..16].
+        let first = li * TILE;
+        var sum = 0.0;
+        for (var i = 0u; i < TILE; i++) {
+            sum += shares[first + i];
         }
+        row_sums[li] = sum;
     }
+    // Also orders this entry's reads of `shares` before the next entry's writes; the next
+    // entry writes `row_sums` only after its first barrier, which the readers below reach
+    // once they are done.
     workgroupBarrier();
     if li < FIELDS {
-        entry_grads[FIELDS * entry + li] = shares[li * TILE_PIXELS];
+        var sum = 0.0;
+        for (var row = 0u; row < TILE; row++) {
+            sum += row_sums[li * TILE + row];
+        }
+        entry_grads[FIELDS * entry + li] = sum;
     }
-    // The next entry overwrites the shares only after every reader is done.
-    workgroupBarrier();
 }
