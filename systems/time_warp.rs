@@ -13,11 +13,16 @@ pub fn time_warp(
 ) {
     let warp = settings.warp;
     let t = sample.time;
-    gaussians.par_iter_mut().for_each(|(temporal, mut warped)| {
-        let dt = t - temporal.center;
-        *warped = WarpedTime {
-            dt,
-            dtw: warp.apply(temporal.center, dt),
-        };
-    });
+    gaussians
+        .contiguous_par_iter_mut()
+        .expect("Temporal and WarpedTime are stored in tables, so the query is dense")
+        .for_each(|(temporal, mut warped)| {
+            for (temporal, warped) in temporal.iter().zip(warped.iter_mut()) {
+                let dt = t - temporal.center;
+                *warped = WarpedTime {
+                    dt,
+                    dtw: warp.apply(temporal.center, dt),
+                };
+            }
+        });
 }
