@@ -48,24 +48,35 @@ pub fn backward_splats(
         ),
     }
 
-    // The densification statistics' gradient sample, while the splat gradients are at hand.
+    // One pass over the slots: the densification statistics' gradient sample, while the splat
+    // gradients are at hand, and the chain rule through the projection.
     let half = glam::Vec2::new(0.5 * camera.width as f32, 0.5 * camera.height as f32);
-    buffers
-        .splats
+    let SplatBuffers {
+        deformed,
+        splats,
+        splat_grads,
+        deformed_grads,
+        gradient_reached,
+        ndc_grad_norm,
+        ..
+    } = buffers;
+    let slots = splats.len();
+    ndc_grad_norm.resize(slots, 0.0);
+    deformed_grads.resize(slots, DeformedGrad::default());
+    gradient_reached.resize(slots, false);
+    deformed
         .par_iter()
-        .zip(&buffers.splat_grads)
-        .map(|(s, g)| ndc_gradient_norm(s, g, half))
-        .collect_into_vec(&mut buffers.ndc_grad_norm);
-
-    buffers
-        .deformed
-        .par_iter()
-        .zip(&buffers.splats)
-        .zip(&buffers.splat_grads)
-        .map(|((d, s), g)| {
+        .zip(splats.par_iter())
+        .zip(splat_grads.par_iter())
+        .zip(ndc_grad_norm.par_iter_mut())
+        .zip(deformed_grads.par_iter_mut())
+        .zip(gradient_reached.par_iter_mut())
+        .for_each(|(((((d, s), g), ndc_norm), grad), reached)| {
+            *ndc_norm = ndc_gradient_norm(s, g, half);
             // Splats behind opaque pixels get no gradient: nothing to chain back.
             if !s.visible || *g == SplatGrad::default() {
-                return (DeformedGrad::default(), false);
+                (*grad, *reached) = (DeformedGrad::default(), false);
+                return;
             }
             let p = project_backward(
                 Vec3::from_array(d.mean),
@@ -75,16 +86,15 @@ pub fn backward_splats(
                 g.mean2d,
                 g.conic,
             );
-            let grad = DeformedGrad {
+            *grad = DeformedGrad {
                 mean: p.mean,
                 rotation: p.quat,
                 scale: p.scale,
                 opacity: g.opacity,
                 color: g.color,
             };
-            (grad, grad != DeformedGrad::default())
-        })
-        .unzip_into_vecs(&mut buffers.deformed_grads, &mut buffers.gradient_reached);
+            *reached = *grad != DeformedGrad::default();
+        });
     Ok(())
 }
 

@@ -21,17 +21,28 @@ pub fn splat(
 ) -> Result {
     let buffers = &mut *buffers;
     let camera = sample.camera;
+    let near_plane = settings.train.near_plane;
     buffers.deformed.clear();
-    for (slot, (deformed, mut splat_slot)) in gaussians.iter_mut().enumerate() {
-        splat_slot.0 = slot as u32;
-        buffers.deformed.push(*deformed);
+    buffers.splats.clear();
+    // Table by table (one, unless some Gaussians lack an optional group): a copy of the
+    // column, its projection and the slot numbers each in one parallel pass, rather than one
+    // entity at a time.
+    let tables = gaussians
+        .contiguous_iter_mut()
+        .expect("the splatting stage's components are stored in tables, so the query is dense");
+    for (deformed, mut slots) in tables {
+        let first = buffers.deformed.len();
+        buffers.deformed.extend_from_slice(deformed);
+        buffers.splats.par_extend(
+            deformed
+                .par_iter()
+                .map(|d| project_splat(d, &camera, near_plane)),
+        );
+        slots[..]
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(i, slot)| slot.0 = (first + i) as u32);
     }
-    project_all(
-        &buffers.deformed,
-        &camera,
-        settings.train.near_plane,
-        &mut buffers.splats,
-    );
     let (width, height) = (camera.width as usize, camera.height as usize);
     let background = sample.background;
     match gpu {
