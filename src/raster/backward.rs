@@ -6,8 +6,11 @@ use super::binning::for_each_tile_mut;
 use super::{
     ALPHA_MAX, F16, Falloff, GROUPS, GroupBits, LANES, M16, PREFETCH_AHEAD, Packed, Pair, Pairs,
     Rasterizer, RowSpans, SLOTS, Splat, SplatGrad, TILE, TILE_PIXELS, box_in_tile, falloff_pair,
-    prefetch_entry, row_spans, simd_kernel,
+    prefetch, prefetch_entry, row_spans, simd_kernel,
 };
+
+/// How many entries ahead the reduction of the partial sums prefetches the splat it adds into.
+const REDUCE_AHEAD: usize = 16;
 
 impl Rasterizer {
     /// Back-propagates `d_color` (dL/d(rendered colour), row-major, same size as the last
@@ -82,7 +85,10 @@ impl Rasterizer {
             for tile in tiles {
                 let walked_grads = &entry_grads[walked[tile] as usize..walked[tile + 1] as usize];
                 let entries = &bins.sorted_splats[bins.tile_range(tile)];
-                for (&s, g) in entries.iter().zip(walked_grads) {
+                for (i, (&s, g)) in entries.iter().zip(walked_grads).enumerate() {
+                    if let Some(&ahead) = entries.get(i + REDUCE_AHEAD) {
+                        prefetch(sums, ahead as usize);
+                    }
                     sums[s as usize].add(g);
                 }
             }

@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use super::{Splat, TILE};
+use super::{Splat, TILE, prefetch};
 
 /// Per-tile, depth-sorted lists of splats, reused across frames.
 #[derive(Default)]
@@ -144,17 +144,25 @@ impl TileBins {
 
         // What the scatter reads of each splat, gathered into depth order once, so that the
         // chunks read one array front to back instead of jumping around two.
+        // The rectangles are read in depth order, which jumps around the array: each is
+        // prefetched a few keys ahead, so the misses overlap instead of stalling one by one.
         let rects = &self.rects;
+        self.by_depth.resize(covering, DepthOrdered::default());
         self.sorted_keys
-            .par_iter()
-            .map(|&key| {
-                let s = key as u32;
-                DepthOrdered {
-                    splat: s,
-                    rect: rects[s as usize],
+            .par_chunks(GATHER_CHUNK)
+            .zip(self.by_depth.par_chunks_mut(GATHER_CHUNK))
+            .for_each(|(keys, by_depth)| {
+                for (i, (&key, d)) in keys.iter().zip(by_depth).enumerate() {
+                    if let Some(&ahead) = keys.get(i + GATHER_AHEAD) {
+                        prefetch(rects, ahead as u32 as usize);
+                    }
+                    let s = key as u32;
+                    *d = DepthOrdered {
+                        splat: s,
+                        rect: rects[s as usize],
+                    };
                 }
-            })
-            .collect_into_vec(&mut self.by_depth);
+            });
 
         // Entries per chunk and tile, from a 2-D difference array of each chunk's rectangles:
         // +1 at the corners (x0, y0) and (x1, y1), −1 at (x1, y0) and (x0, y1), then prefix
@@ -260,6 +268,11 @@ impl TileBins {
             });
     }
 }
+
+/// Keys per parallel task of the gather into depth order.
+const GATHER_CHUNK: usize = 16 * 1024;
+/// How many keys ahead that gather prefetches.
+const GATHER_AHEAD: usize = 16;
 
 /// How many of `items` splats each chunk of the binning takes (the last may take fewer): a few
 /// chunks per thread, so an uneven chunk does not hold the others up, but none below 8 192

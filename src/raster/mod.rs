@@ -238,19 +238,18 @@ fn exp2_falloff<const FUSED: bool>(t: f32) -> f32 {
 /// waits on.
 #[inline(always)]
 fn prefetch_entry(splats: &[Packed], entries: &[u32], k: usize) {
-    #[cfg(target_arch = "x86_64")]
-    if let Some(&s) = entries.get(k)
-        && let Some(sp) = splats.get(s as usize)
-    {
-        // SAFETY: a prefetch never faults and the pointer is in bounds.
-        unsafe {
-            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                (sp as *const Packed).cast(),
-            )
-        };
+    if let Some(&s) = entries.get(k) {
+        prefetch(splats, s as usize);
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (splats, entries, k);
+}
+
+/// Asks the CPU to start loading `items[index]` (when in bounds) into its cache, for a loop
+/// that reads it a few steps later.
+#[inline(always)]
+fn prefetch<T>(items: &[T], index: usize) {
+    if let Some(item) = items.get(index) {
+        crate::systems::prefetch::prefetch(std::slice::from_ref(item));
+    }
 }
 
 /// How many entries ahead [`prefetch_entry`] looks.
