@@ -42,23 +42,10 @@ impl<T: Copy + Default> RowsAhead<T> {
 }
 
 /// Asks the CPU to bring every cache line of `values` in ahead of their use (a no-op off
-/// x86-64).
+/// x86-64). The rasterizer's loops use the same helper, which lives beside them.
 #[inline(always)]
 pub fn prefetch<T>(values: &[T]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        let start = values.as_ptr().cast::<u8>();
-        for offset in (0..std::mem::size_of_val(values)).step_by(64) {
-            // SAFETY: a prefetch never faults, and the address is inside `values`.
-            unsafe {
-                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                    start.add(offset).cast(),
-                )
-            };
-        }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = values;
+    crate::raster::prefetch_lines(values);
 }
 
 #[cfg(test)]

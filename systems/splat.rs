@@ -33,11 +33,7 @@ pub fn splat(
     for (deformed, mut slots) in tables {
         let first = buffers.deformed.len();
         buffers.deformed.extend_from_slice(deformed);
-        buffers.splats.par_extend(
-            deformed
-                .par_iter()
-                .map(|d| project_splat(d, &camera, near_plane)),
-        );
+        extend_projected(deformed, &camera, near_plane, &mut buffers.splats);
         slots[..]
             .par_iter_mut()
             .enumerate()
@@ -72,10 +68,22 @@ pub fn project_all(
     near_plane: f32,
     splats: &mut Vec<Splat>,
 ) {
-    deformed
-        .par_iter()
-        .map(|d| project_splat(d, camera, near_plane))
-        .collect_into_vec(splats);
+    splats.clear();
+    extend_projected(deformed, camera, near_plane, splats);
+}
+
+/// Appends the splats of `deformed` (same order) to `splats`, in parallel.
+fn extend_projected(
+    deformed: &[Deformed],
+    camera: &crate::data::Camera,
+    near_plane: f32,
+    splats: &mut Vec<Splat>,
+) {
+    splats.par_extend(
+        deformed
+            .par_iter()
+            .map(|d| project_splat(d, camera, near_plane)),
+    );
 }
 
 /// The splat of one deformed Gaussian; invisible when culled (nearer than `near_plane`, off

@@ -143,9 +143,9 @@ impl TileBins {
         self.sorted_keys.truncate(covering);
 
         // What the scatter reads of each splat, gathered into depth order once, so that the
-        // chunks read one array front to back instead of jumping around two.
-        // The rectangles are read in depth order, which jumps around the array: each is
-        // prefetched a few keys ahead, so the misses overlap instead of stalling one by one.
+        // chunks read one array front to back instead of jumping around two. The gather itself
+        // jumps around the rectangles: each is prefetched a few keys ahead, so the misses
+        // overlap instead of stalling one by one.
         let rects = &self.rects;
         self.by_depth.resize(covering, DepthOrdered::default());
         self.sorted_keys

@@ -248,8 +248,28 @@ fn prefetch_entry(splats: &[Packed], entries: &[u32], k: usize) {
 #[inline(always)]
 fn prefetch<T>(items: &[T], index: usize) {
     if let Some(item) = items.get(index) {
-        crate::systems::prefetch::prefetch(std::slice::from_ref(item));
+        prefetch_lines(std::slice::from_ref(item));
     }
+}
+
+/// Asks the CPU to bring every cache line of `values` in ahead of their use (a no-op off
+/// x86-64).
+#[inline(always)]
+pub(crate) fn prefetch_lines<T>(values: &[T]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let start = values.as_ptr().cast::<u8>();
+        for offset in (0..std::mem::size_of_val(values)).step_by(64) {
+            // SAFETY: a prefetch never faults, and the address is inside `values`.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                    start.add(offset).cast(),
+                )
+            };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = values;
 }
 
 /// How many entries ahead [`prefetch_entry`] looks.
