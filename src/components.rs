@@ -1,8 +1,8 @@
 //! Per-Gaussian components: plain `#[repr(C)]` data, one Gaussian = one entity.
 //!
 //! Optimised fields live in [`Param`] components; each has a [`Grad`] (this iteration's gradient)
-//! and an [`Adam`] (first and second moments) of the same shape, so the optimiser, the cloner and
-//! the pruner treat every field alike.
+//! of the same shape and an [`Adam`] (first and second moments, one bfloat16 per value each),
+//! so the optimiser, the cloner and the pruner treat every field alike.
 
 use bevy_ecs::bundle::{Bundle, NoBundleEffect};
 use bevy_ecs::component::{Component, Mutable};
@@ -195,6 +195,7 @@ impl Param for MotionWeights {
     const NAME: &'static str = "motion_weights";
     /// Outside [`PARAM_GROUPS`], so outside the GPU-resident layout too.
     const INDEX: usize = usize::MAX;
+    type Moment = [u16; std::mem::size_of::<MotionWeights>() / 4];
 }
 
 /// The warped temporal offset Δt' = W(t − t_i) at the current time.
@@ -264,6 +265,9 @@ pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync +
     const INDEX: usize;
     /// `f32` values per Gaussian.
     const FLOATS: usize = std::mem::size_of::<Self>() / std::mem::size_of::<f32>();
+    /// One Adam moment of the group as stored: a bfloat16 per value (`[u16; FLOATS]`, see
+    /// [`crate::model::adam::moment_value`]).
+    type Moment: Pod + Send + Sync + std::fmt::Debug + PartialEq;
 
     /// The component's fields as one flat slice of `f32`, in declaration order.
     fn values(&self) -> &[f32] {
@@ -388,8 +392,8 @@ macro_rules! declare_params {
                 let ($($rfield,)* $($ofield,)*) = refs;
                 $(let $ofield = $ofield.copied().unwrap_or_default();)*
                 [
-                    Self { $($rfield: $rfield.m,)* $($ofield: $ofield.m,)* },
-                    Self { $($rfield: $rfield.v,)* $($ofield: $ofield.v,)* },
+                    Self { $($rfield: $rfield.m(),)* $($ofield: $ofield.m(),)* },
+                    Self { $($rfield: $rfield.v(),)* $($ofield: $ofield.v(),)* },
                 ]
             }
 
@@ -406,11 +410,11 @@ macro_rules! declare_params {
                         ($(self.$rfield,)*),
                         (
                             Default::default(),
-                            ($(Adam { m: m.$rfield, v: v.$rfield },)*),
+                            ($(Adam::new(&m.$rfield, &v.$rfield),)*),
                         ),
                         Default::default(),
                     ),
-                    ($((self.$ofield, Grad::default(), Adam { m: m.$ofield, v: v.$ofield }),)*),
+                    ($((self.$ofield, Grad::default(), Adam::new(&m.$ofield, &v.$ofield)),)*),
                 )
             }
         }
@@ -445,6 +449,7 @@ macro_rules! declare_params {
         impl Param for $component {
             const NAME: &'static str = stringify!($field);
             const INDEX: usize = $index;
+            type Moment = [u16; std::mem::size_of::<$component>() / 4];
         }
         declare_params!(@impl $index + 1usize; $($rest)*);
     };
@@ -485,19 +490,64 @@ param_groups!(declare_params);
 #[repr(transparent)]
 pub struct Grad<P: Param>(pub P);
 
-/// Adam first and second moments for parameter component `P`.
-#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+/// Adam first and second moments for parameter component `P`, stored as bfloat16 (half the
+/// memory of `f32` moments; see [`crate::model::adam::store_moment`] for how they are
+/// rounded). [`Adam::m`] and [`Adam::v`] give them as `P`s.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
 #[repr(C)]
 pub struct Adam<P: Param> {
     /// First moment (running mean of the gradient).
-    pub m: P,
+    m: P::Moment,
     /// Second moment (running mean of the squared gradient).
-    pub v: P,
+    v: P::Moment,
 }
 
-// SAFETY: `Grad<P>` is a transparent wrapper of the plain-data `P`; `Adam<P>` is two `P`s in
-// C layout, and `P` (all `f32`) has no padding, so neither has padding or invalid bit patterns.
-// This lets the optimiser step a whole column of them as one flat `f32` slice.
+impl<P: Param> Adam<P> {
+    /// Moments `m` and `v`, each rounded to the nearest stored value.
+    pub fn new(m: &P, v: &P) -> Self {
+        let mut adam = Self::zeroed();
+        let store = |from: &P, to: &mut P::Moment| {
+            let to: &mut [u16] = bytemuck::cast_slice_mut(std::slice::from_mut(to));
+            for (to, &from) in to.iter_mut().zip(from.values()) {
+                *to = crate::model::adam::store_moment_nearest(from);
+            }
+        };
+        store(m, &mut adam.m);
+        store(v, &mut adam.v);
+        adam
+    }
+
+    /// The first moment (running mean of the gradient).
+    pub fn m(&self) -> P {
+        moment_values(&self.m)
+    }
+
+    /// The second moment (running mean of the squared gradient).
+    pub fn v(&self) -> P {
+        moment_values(&self.v)
+    }
+}
+
+/// The values of a stored moment.
+fn moment_values<P: Param>(stored: &P::Moment) -> P {
+    let mut values = P::default();
+    let stored: &[u16] = bytemuck::cast_slice(std::slice::from_ref(stored));
+    for (value, &stored) in values.values_mut().iter_mut().zip(stored) {
+        *value = crate::model::adam::moment_value(stored);
+    }
+    values
+}
+
+impl<P: Param> Default for Adam<P> {
+    fn default() -> Self {
+        Self::zeroed()
+    }
+}
+
+// SAFETY: `Grad<P>` is a transparent wrapper of the plain-data `P`; `Adam<P>` is two
+// `P::Moment`s (`[u16; N]`, both of the same type) in C layout. Neither has padding or invalid
+// bit patterns. This lets the optimiser step a whole column of them as one flat slice (`f32`
+// values, `u16` moments).
 unsafe impl<P: Param> Zeroable for Grad<P> {}
 unsafe impl<P: Param> Pod for Grad<P> {}
 unsafe impl<P: Param> Zeroable for Adam<P> {}

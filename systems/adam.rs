@@ -22,7 +22,15 @@ use crate::systems::deform::{faded_geometry_read, opacity_at};
 use crate::systems::prefetch::{RowsAhead, prefetch};
 
 pub use crate::model::adam::{BETA1, BETA2, EPSILON};
-use crate::model::adam::{BiasCorrection, DeferredSums, adam_update, deferred_update};
+use crate::model::adam::{
+    BiasCorrection, DeferredSums, adam_update, adam_update_stored, deferred_update_stored,
+    moment_seed,
+};
+
+/// Salts of [`moment_seed`]: the dense step and the catch-up of skipped steps round the stored
+/// moments with different random bits.
+const DENSE_STEP: u32 = 0;
+const CATCH_UP: u32 = 0x5EED_CA7C;
 
 /// A parameter group: how each of its values' learning rate is set.
 pub trait ParamGroup: Param {
@@ -221,22 +229,23 @@ pub fn adam_step<P: ParamGroup>(
         }
         _ => None,
     };
+    let seed = moment_seed(iteration, DENSE_STEP);
     params
         .contiguous_par_iter_mut()
         .expect("parameter components are stored in tables, so the query is dense")
         .for_each(|(mut values, grads, mut moments, slots, clocks)| {
             let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
             let grads: &[f32] = bytemuck::cast_slice(grads);
-            let moments: &mut [f32] = bytemuck::cast_slice_mut(&mut moments[..]);
+            let moments: &mut [u16] = bytemuck::cast_slice_mut(&mut moments[..]);
             let (Some(reached), Some(slots)) = (reached, slots) else {
-                adam_values(values, grads, moments, P::FLOATS, rates, bias);
+                adam_values(values, grads, moments, P::FLOATS, rates, bias, seed);
                 return;
             };
             let floats = P::FLOATS;
             let mut coefficients = [0.0; MAX_GROUP_FLOATS];
             let coefficients = &mut coefficients[..rates.len()];
             let all_catch_up = deferred.is_some_and(|(_, all)| all);
-            let mut step_row = |values: &mut [f32], moments: &mut [f32], i: usize, seen: bool| {
+            let mut step_row = |values: &mut [f32], moments: &mut [u16], i: usize, seen: bool| {
                 let x = &mut values[i * floats..(i + 1) * floats];
                 let mv = &mut moments[2 * i * floats..2 * (i + 1) * floats];
                 if let Some((sums, _)) = deferred {
@@ -248,7 +257,7 @@ pub fn adam_step<P: ParamGroup>(
                 }
                 if seen {
                     let g = &grads[i * floats..(i + 1) * floats];
-                    adam_values(x, g, mv, floats, rates, bias);
+                    adam_values(x, g, mv, floats, rates, bias, seed);
                 }
             };
             // The Gaussians a view reaches lie scattered over the table: their rows are
@@ -302,7 +311,7 @@ fn sums_through<P: ParamGroup>(sums: &mut DeferredSums, settings: &Settings, ite
 #[inline]
 fn catch_up(
     x: &mut [f32],
-    mv: &mut [f32],
+    mv: &mut [u16],
     sums: &DeferredSums,
     last: u32,
     through: u32,
@@ -314,9 +323,10 @@ fn catch_up(
     }
     sums.coefficients(last, through, coefficients);
     let (decay, epsilon) = (sums.decay(through - last), sums.epsilon(last));
+    let seed = moment_seed(through, CATCH_UP);
     let (m, v) = mv.split_at_mut(x.len());
     for (((x, m), v), &c) in x.iter_mut().zip(m).zip(v).zip(&*coefficients) {
-        deferred_update(x, m, v, c, epsilon, decay);
+        deferred_update_stored(x, [m, v], c, epsilon, decay, seed);
     }
 }
 
@@ -381,10 +391,10 @@ pub fn catch_up_drawable<P: ParamGroup>(
         .expect("parameter components are stored in tables, so the query is dense")
         .for_each(|(mut values, mut moments, clocks)| {
             let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
-            let moments: &mut [f32] = bytemuck::cast_slice_mut(&mut moments[..]);
+            let moments: &mut [u16] = bytemuck::cast_slice_mut(&mut moments[..]);
             let mut coefficients = [0.0; MAX_GROUP_FLOATS];
             let coefficients = &mut coefficients[..active];
-            let mut row = |values: &mut [f32], moments: &mut [f32], i: usize, last: u32| {
+            let mut row = |values: &mut [f32], moments: &mut [u16], i: usize, last: u32| {
                 let x = &mut values[i * floats..(i + 1) * floats];
                 let mv = &mut moments[2 * i * floats..2 * (i + 1) * floats];
                 catch_up(x, mv, sums, last, through, coefficients);
@@ -470,16 +480,18 @@ pub fn deferring(settings: Res<Settings>) -> bool {
 }
 
 /// Adam on consecutive Gaussians of one group: `values` and `grads` hold `floats` values per
-/// Gaussian, `moments` the first then the second moment of each (2 × `floats`); the first
-/// `rates.len()` values of each Gaussian are stepped, each with its learning rate.
+/// Gaussian, `moments` the stored first then second moment of each (2 × `floats`); the first
+/// `rates.len()` values of each Gaussian are stepped, each with its learning rate, and their
+/// moments stored rounded with `seed`'s bits.
 #[inline]
 fn adam_values(
     values: &mut [f32],
     grads: &[f32],
-    moments: &mut [f32],
+    moments: &mut [u16],
     floats: usize,
     rates: &[f32],
     bias: BiasCorrection,
+    seed: u32,
 ) {
     // The groups' widths as constants, so that the loop over one Gaussian's values unrolls
     // (most groups hold 1 to 8 values, too few for a loop of unknown length to pay).
@@ -487,7 +499,7 @@ fn adam_values(
         ($($width:literal)*) => {
             match (floats, rates.len()) {
                 $(($width, $width) => {
-                    return adam_fixed::<$width>(values, grads, moments, rates, bias)
+                    return adam_fixed::<$width>(values, grads, moments, rates, bias, seed)
                 })*
                 _ => {}
             }
@@ -502,7 +514,7 @@ fn adam_values(
     for ((x, g), mv) in gaussians {
         let (m, v) = mv.split_at_mut(floats);
         for ((((x, g), m), v), lr) in x.iter_mut().zip(g).zip(m).zip(v).zip(rates) {
-            adam_update(x, *g, m, v, *lr, bias);
+            adam_update_stored(x, *g, [m, v], *lr, bias, seed);
         }
     }
 }
@@ -512,9 +524,10 @@ fn adam_values(
 fn adam_fixed<const WIDTH: usize>(
     values: &mut [f32],
     grads: &[f32],
-    moments: &mut [f32],
+    moments: &mut [u16],
     rates: &[f32],
     bias: BiasCorrection,
+    seed: u32,
 ) {
     let rates: &[f32; WIDTH] = rates.try_into().expect("one rate per value");
     let gaussians = values
@@ -525,7 +538,14 @@ fn adam_fixed<const WIDTH: usize>(
         .zip(moments.as_chunks_mut::<WIDTH>().0.as_chunks_mut::<2>().0);
     for ((x, g), [m, v]) in gaussians {
         for j in 0..WIDTH {
-            adam_update(&mut x[j], g[j], &mut m[j], &mut v[j], rates[j], bias);
+            adam_update_stored(
+                &mut x[j],
+                g[j],
+                [&mut m[j], &mut v[j]],
+                rates[j],
+                bias,
+                seed,
+            );
         }
     }
 }
@@ -620,9 +640,10 @@ pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::adam::store_moment_nearest;
 
     /// The chunked update steps each Gaussian's active values exactly as the scalar
-    /// [`adam_update`] does (bit for bit), whatever the group's width, and leaves the values
+    /// [`adam_update_stored`] does (bit for bit), whatever the group's width, and leaves the values
     /// past the active ones (and their moments) untouched.
     #[test]
     fn adam_values_equal_scalar_updates() {
@@ -644,8 +665,8 @@ mod tests {
             let g: Vec<f32> = (0..gaussians * floats)
                 .map(|i| 1e-3 * value(i + 13))
                 .collect();
-            let mut mv: Vec<f32> = (0..2 * gaussians * floats)
-                .map(|i| 1e-4 * value(i + 29).abs())
+            let mut mv: Vec<u16> = (0..2 * gaussians * floats)
+                .map(|i| store_moment_nearest(1e-4 * value(i + 29).abs()))
                 .collect();
             let rates: Vec<f32> = (0..floats).map(|j| 1e-3 * (j + 1) as f32).collect();
 
@@ -654,10 +675,11 @@ mod tests {
                 let (m, v) = mv_ref[2 * floats * i..2 * floats * (i + 1)].split_at_mut(floats);
                 for j in 0..active {
                     let k = floats * i + j;
-                    adam_update(&mut x_ref[k], g[k], &mut m[j], &mut v[j], rates[j], bias);
+                    let moments = [&mut m[j], &mut v[j]];
+                    adam_update_stored(&mut x_ref[k], g[k], moments, rates[j], bias, 11);
                 }
             }
-            adam_values(&mut x, &g, &mut mv, floats, &rates[..active], bias);
+            adam_values(&mut x, &g, &mut mv, floats, &rates[..active], bias, 11);
 
             let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
             assert_eq!(
@@ -665,11 +687,7 @@ mod tests {
                 bits(&x_ref),
                 "values, {floats} floats, {active} active"
             );
-            assert_eq!(
-                bits(&mv),
-                bits(&mv_ref),
-                "moments, {floats} floats, {active} active"
-            );
+            assert_eq!(mv, mv_ref, "moments, {floats} floats, {active} active");
         }
     }
 }

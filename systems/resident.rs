@@ -199,8 +199,8 @@ fn gather<P: Param>(world: &mut World, state: &mut ResidentState, count: usize) 
     for (value, adam, slot) in world.query::<(&P, &Adam<P>, &SplatSlot)>().iter(world) {
         let range = group_range::<P>(count, slot.0 as usize);
         state.params[range.clone()].copy_from_slice(value.values());
-        state.m[range.clone()].copy_from_slice(adam.m.values());
-        state.v[range].copy_from_slice(adam.v.values());
+        state.m[range.clone()].copy_from_slice(adam.m().values());
+        state.v[range].copy_from_slice(adam.v().values());
     }
 }
 
@@ -453,10 +453,7 @@ fn scatter<P: Param>(world: &mut World, state: &ResidentState) {
             bytemuck::pod_read_unaligned(bytemuck::cast_slice(&values[range.clone()]))
         };
         *value = get(&state.params);
-        *adam = Adam {
-            m: get(&state.m),
-            v: get(&state.v),
-        };
+        *adam = Adam::new(&get(&state.m), &get(&state.v));
     }
 }
 

@@ -116,7 +116,10 @@ fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>, stop: u32) {
     if let Some(shared) = &saved.shared_motion {
         assert!(
             shared.m.iter().flatten().any(|&m| m != 0.0)
-                && saved.gaussians.iter().any(|g| g.motion_adam.m.w[0] != 0.0),
+                && saved
+                    .gaussians
+                    .iter()
+                    .any(|g| g.motion_adam.m().w[0] != 0.0),
             "the shared motion should have been trained before the stop"
         );
     }

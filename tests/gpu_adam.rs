@@ -47,9 +47,11 @@ fn worst_relative(gpu: &[f32], cpu: &[f32], floor: f32) -> f32 {
         .fold(0.0, f32::max)
 }
 
-/// Runs `steps` Adam steps of group `P` on the CPU system and on the GPU from the same
-/// values, moments and gradients (gradients from 1e-8 to 1, some exactly zero), and returns
-/// the worst relative errors of the values, m and v over all steps.
+/// Runs `steps` Adam steps of group `P` on the CPU system and on the GPU, each from the same
+/// values, moments and gradients (gradients from 1e-8 to 1, some exactly zero; the GPU is
+/// given the CPU's moments before each step, since it keeps them in `f32` and the CPU rounds
+/// them to bfloat16), and returns the worst relative errors of the values, m and v over all
+/// steps.
 fn adam_parity<P: ParamGroup>(gpu: &GpuContext, adam: &GpuAdam, n: usize, steps: u32) -> [f32; 3] {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let settings = settings();
@@ -65,10 +67,7 @@ fn adam_parity<P: ParamGroup>(gpu: &GpuContext, adam: &GpuAdam, n: usize, steps:
     });
     let entities: Vec<Entity> = (0..n)
         .map(|_| {
-            let adam = Adam::<P> {
-                m: random_values(&mut rng, 1e-3),
-                v: P::default(),
-            };
+            let adam = Adam::<P>::new(&random_values(&mut rng, 1e-3), &P::default());
             world
                 .spawn((random_values::<P>(&mut rng, 1.0), Grad(P::default()), adam))
                 .id()
@@ -80,14 +79,12 @@ fn adam_parity<P: ParamGroup>(gpu: &GpuContext, adam: &GpuAdam, n: usize, steps:
         for &e in &entities {
             x.extend_from_slice(world.get::<P>(e).unwrap().values());
             let adam = world.get::<Adam<P>>(e).unwrap();
-            m.extend_from_slice(adam.m.values());
-            v.extend_from_slice(adam.v.values());
+            m.extend_from_slice(adam.m().values());
+            v.extend_from_slice(adam.v().values());
         }
         (x, m, v)
     };
-    let (x, m, v) = gather(&world);
     let mut group = GpuParamGroup::new(gpu, stride);
-    group.upload(&x, &m, &v);
     let mut worst = [0f32; 3];
     let (mut gx, mut gm, mut gv) = (Vec::new(), Vec::new(), Vec::new());
     // Start late in the run so the position rate has decayed, with the bias correction of a
@@ -105,6 +102,8 @@ fn adam_parity<P: ParamGroup>(gpu: &GpuContext, adam: &GpuAdam, n: usize, steps:
             grads.extend_from_slice(g.values());
             world.get_mut::<Grad<P>>(e).unwrap().0 = g;
         }
+        let (x, m, v) = gather(&world);
+        group.upload(&x, &m, &v);
         world.resource_mut::<TrainState>().iteration = iteration;
         world.run_system_once(adam_step::<P>).unwrap();
         group.upload_grads(&grads);
@@ -123,7 +122,8 @@ fn adam_parity<P: ParamGroup>(gpu: &GpuContext, adam: &GpuAdam, n: usize, steps:
 
 /// Every parameter group (strides 1 to 48, per-slot rates, the decaying position rate, the
 /// fixed temporal centre with rate 0) over five steps, and one group dispatched as a 2D grid:
-/// values, m and v within 1e-6 relative of the CPU's.
+/// values within 1e-6 relative of the CPU's; m and v within 2⁻⁷ relative, the largest spacing
+/// of the CPU's bfloat16 moments (m rounded to nearest, v to either neighbour).
 #[test]
 fn gpu_adam_equals_cpu_adam_step() {
     let Some(ctx) = gpu::gpu_context() else {
@@ -152,7 +152,7 @@ fn gpu_adam_equals_cpu_adam_step() {
     for (name, [x, m, v]) in results.into_iter().chain([grid]) {
         eprintln!("adam {name}: worst relative error values {x:e}, m {m:e}, v {v:e}");
         assert!(
-            x <= 1e-6 && m <= 1e-6 && v <= 1e-6,
+            x <= 1e-6 && m <= 1.0 / 128.0 && v <= 1.0 / 128.0,
             "{name}: values {x:e}, m {m:e}, v {v:e}"
         );
     }

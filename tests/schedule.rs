@@ -107,10 +107,10 @@ fn adam_is_zero<P: Param>(world: &mut World, e: Entity) -> bool {
     let adam = world
         .get::<Adam<P>>(e)
         .expect("every Gaussian has Adam state for every group");
-    adam.m
+    adam.m()
         .values()
         .iter()
-        .chain(adam.v.values())
+        .chain(adam.v().values())
         .all(|v| *v == 0.0)
 }
 

@@ -87,7 +87,7 @@ fn visible_adam_freezes_unseen_gaussians_and_steps_seen_ones_as_dense_adam() {
             assert_eq!((v.0, v.1), (b.0, b.1));
             frozen += 1;
             // Without it, a Gaussian with momentum moves on it (the test can tell them apart).
-            if b.1.m != Position::default() {
+            if b.1.m() != Position::default() {
                 assert_ne!(d.0, b.0);
                 drifted += 1;
             }
@@ -172,10 +172,15 @@ fn world_after_sparse_steps(deferred: bool, last: u32) -> World {
     world
 }
 
-/// Deferred and dense values of group `P` agree to 1e-4 of the largest move since `start`
-/// plus 2e-6 of the value (dense Adam rounds once per step), moments to 1e-4 relative. Where
-/// the second moment is so small (√v < 1e4·ε, gradients of 1e-11 and below) that Adam's ε
-/// weighs on the skipped steps, which deferred Adam takes in one, to 1e-2 of the move.
+/// Deferred and dense values of group `P` agree to 5e-2 of the largest move since `start`
+/// plus 2e-6 of the value (dense Adam rounds once per step), moments to 0.15 relative plus
+/// 1e-2 of the group's largest. The moments are stored in bfloat16 and rounded at random
+/// (dense Adam at every step, deferred Adam once per catch-up), and the second moment's
+/// roundings add up over the 100 steps, so the two runs agree to that rounding, not to f32's:
+/// the worst seen are 2.1e-2 of the move and 5.6e-2 of the moments (f32 moments agreed to
+/// 1e-4; the catch-up's arithmetic is checked to 1e-5 in `model::adam`'s tests). Where the
+/// second moment is so small (√v < 1e4·ε, gradients of 1e-11 and below) that Adam's ε weighs
+/// on the skipped steps, which deferred Adam takes in one, the values agree to 0.1 of the move.
 fn assert_group_matches<P: Param>(deferred: &mut World, dense: &mut World, start: &mut World) {
     let (a, b, s) = (
         group_state::<P>(deferred),
@@ -193,32 +198,45 @@ fn assert_group_matches<P: Param>(deferred: &mut World, dense: &mut World, start
         })
         .fold(0.0f32, f32::max);
     assert!(moved > 0.0, "{}: nothing moved", P::NAME);
+    let largest = |moment: fn(&Adam<P>) -> P| {
+        b.iter()
+            .flat_map(|(_, adam)| moment(adam).values().to_vec())
+            .fold(0.0f32, |m, x| m.max(x.abs()))
+    };
+    let largest_moments = [largest(Adam::m), largest(Adam::v)];
     let mut ordinary_values = 0;
+    let (mut worst_value, mut worst_moment) = (0.0f32, 0.0f32);
     for (a, b) in a.iter().zip(&b) {
         let values = a.0.values().iter().zip(b.0.values());
-        for ((x, y), v) in values.zip(b.1.v.values()) {
+        for ((x, y), v) in values.zip(b.1.v().values()) {
             let ordinary = v.sqrt() >= 1e4 * EPSILON;
-            let tolerance = if ordinary { 1e-4 } else { 1e-2 };
+            let tolerance = if ordinary { 5e-2 } else { 1e-1 };
             assert!(
                 (x - y).abs() <= tolerance * moved + 2e-6 * y.abs(),
                 "{}: deferred {x} against dense {y} (largest move {moved}, v {v})",
                 P::NAME
             );
             ordinary_values += usize::from(ordinary);
+            if ordinary {
+                worst_value = worst_value.max((x - y).abs() / moved);
+            }
         }
-        let moments = |adam: &Adam<P>| [adam.m.values().to_vec(), adam.v.values().to_vec()];
-        for (x, y) in moments(&a.1)
-            .iter()
-            .flatten()
-            .zip(moments(&b.1).iter().flatten())
-        {
-            assert!(
-                (x - y).abs() <= 1e-4 * y.abs() + 1e-30,
-                "{} moments: deferred {x} against dense {y}",
-                P::NAME
-            );
+        let moments = |adam: &Adam<P>| [adam.m().values().to_vec(), adam.v().values().to_vec()];
+        for ((x, y), largest) in moments(&a.1).iter().zip(moments(&b.1)).zip(largest_moments) {
+            for (x, y) in x.iter().zip(y) {
+                worst_moment = worst_moment.max((x - y).abs() / (y.abs() + 1e-2 * largest));
+                assert!(
+                    (x - y).abs() <= 1.5e-1 * y.abs() + 1e-2 * largest + 1e-30,
+                    "{} moments: deferred {x} against dense {y}",
+                    P::NAME
+                );
+            }
         }
     }
+    eprintln!(
+        "{}: values within {worst_value:.1e} of the move, moments within {worst_moment:.1e}",
+        P::NAME
+    );
     assert!(
         ordinary_values > 100,
         "{}: {ordinary_values} values had gradients",
@@ -227,8 +245,9 @@ fn assert_group_matches<P: Param>(deferred: &mut World, dense: &mut World, start
 }
 
 /// `train.deferred_adam`: at a catch-up iteration (100) every Gaussian's parameters and
-/// moments of every group equal dense Adam's given the same gradients, to 1e-4 of the
-/// largest move; before it, a Gaussian unseen at an iteration is left exactly as it was.
+/// moments of every group equal dense Adam's given the same gradients, to the rounding of the
+/// stored moments (see `assert_group_matches`); before it, a Gaussian unseen at an iteration
+/// is left exactly as it was.
 #[test]
 fn deferred_adam_catches_up_with_dense_adam() {
     let mut start = world_after_sparse_steps(false, 1);
@@ -298,16 +317,25 @@ fn all_parameters(world: &mut World) -> Vec<Vec<f32>> {
     out
 }
 
+/// The rotations' place in [`all_parameters`].
+const ROTATION_GROUP: usize = 4;
+
 /// `train.deferred_adam` trains along dense Adam's trajectory: on the small demo (Gaussians on
 /// an anchor every third frame, short-lived, so that a view's time leaves many too faded to
 /// draw and their momentum steps are deferred), 60 iterations without densification end with
-/// at most 0.5 % of each group's parameters more than 1e-3 of the group's largest move away
+/// at most 0.5 % of each group's parameters more than 1e-2 of the group's largest move away
 /// from dense Adam's, and none more than 1/4 of it, because a Gaussian the view can draw is
 /// brought up to date before its gradient is taken. (A few Gaussians near the 1/255 opacity
-/// edge are drawn at an iteration by one run and not by the other, which rounding decides.
-/// Taking the gradient before the catch-up, as this option first did, left 7 to 85 % of each
-/// group's values further than 1e-3 of the move, and some rotations a whole move away, with
-/// the opacity and temporal groups stepped densely as here.)
+/// edge are drawn at an iteration by one run and not by the other, which rounding decides.)
+///
+/// The rotations are left out: their first gradients are near zero (the Gaussians start
+/// isotropic), so Adam's normalised steps follow the signs of gradients that any rounding
+/// decides, and the bfloat16 moments' stochastic rounding is enough. Two dense runs whose
+/// moments are rounded with other random bits differ as much: 41 % of the rotation values
+/// beyond 1e-2 of the move, the worst by the whole move (against 22 % and 0.87 of it between
+/// deferred and dense), while the other groups stay within 0.5 % beyond 1e-2 and a worst of
+/// 0.22 of the move (0.04 between deferred and dense). Without the catch-up before the
+/// deformation, five of the six other groups have 0.8 to 1.1 % of their values beyond 1e-2.
 #[test]
 fn deferred_adam_trains_along_dense_adams_trajectory() {
     let (mut config, dataset) = demo::small_demo("deferred-trajectory", 12, 64, 48, 300);
@@ -341,7 +369,8 @@ fn deferred_adam_trains_along_dense_adams_trajectory() {
         faded * 4 > gaussians,
         "a view should leave many Gaussians faded: {faded} of {gaussians}"
     );
-    for (k, ((dense, deferred), start)) in dense.iter().zip(&deferred).zip(&start).enumerate() {
+    let groups = dense.iter().zip(&deferred).zip(&start).enumerate();
+    for (k, ((dense, deferred), start)) in groups.filter(|(k, _)| *k != ROTATION_GROUP) {
         let moved = dense
             .iter()
             .zip(start)
@@ -353,11 +382,16 @@ fn deferred_adam_trains_along_dense_adams_trajectory() {
             .zip(deferred)
             .map(|(x, y)| (x - y).abs())
             .collect();
-        let off = differences.iter().filter(|&&d| d > 1e-3 * moved).count();
+        let off = differences.iter().filter(|&&d| d > 1e-2 * moved).count();
         let worst = differences.iter().copied().fold(0.0f32, f32::max);
+        eprintln!(
+            "group {k}: {off} of {} values beyond 1e-2 of the move, the worst {:.2e} of it",
+            differences.len(),
+            worst / moved
+        );
         assert!(
             off * 200 <= differences.len() && worst <= 0.25 * moved,
-            "group {k}: {off} of {} values differ from dense Adam's by more than 1e-3 of the \
+            "group {k}: {off} of {} values differ from dense Adam's by more than 1e-2 of the \
              largest move {moved}; the largest difference is {worst}",
             differences.len()
         );

@@ -358,8 +358,8 @@ impl Checkpoint {
             type WeightsOf = fn(&GaussianState) -> MotionWeights;
             let weights: [(&str, WeightsOf); 3] = [
                 ("", |g| g.motion_weights),
-                ("adam.m.", |g| g.motion_adam.m),
-                ("adam.v.", |g| g.motion_adam.v),
+                ("adam.m.", |g| g.motion_adam.m()),
+                ("adam.v.", |g| g.motion_adam.v()),
             ];
             for ((prefix, weights), values) in
                 weights.into_iter().zip([&b.values, &shared.m, &shared.v])
@@ -661,10 +661,7 @@ fn read_gaussian_states(
                 .map_or_else(Default::default, |(_, w)| w[0][i]),
             motion_adam: shared_motion
                 .as_ref()
-                .map_or_else(Default::default, |(_, w)| Adam {
-                    m: w[1][i],
-                    v: w[2][i],
-                }),
+                .map_or_else(Default::default, |(_, w)| Adam::new(&w[1][i], &w[2][i])),
         })
         .collect();
     Ok((gaussians, shared_motion.map(|(shared, _)| shared)))
