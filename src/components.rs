@@ -10,6 +10,7 @@ use bevy_ecs::world::World;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
+use crate::model::adam::{StoredMoments, store_moments_nearest, stored_moments};
 use crate::model::deform::FOURIER_TERMS;
 use crate::model::sh::SH_COEFFS;
 use crate::model::shared_motion::MAX_MOTION_BASES;
@@ -195,7 +196,7 @@ impl Param for MotionWeights {
     const NAME: &'static str = "motion_weights";
     /// Outside [`PARAM_GROUPS`], so outside the GPU-resident layout too.
     const INDEX: usize = usize::MAX;
-    type Moment = [u16; std::mem::size_of::<MotionWeights>() / 4];
+    type Moments = [StoredMoments; std::mem::size_of::<MotionWeights>() / 4];
 }
 
 /// The warped temporal offset Δt' = W(t − t_i) at the current time.
@@ -265,9 +266,9 @@ pub trait Param: Component<Mutability = Mutable> + Pod + Default + Send + Sync +
     const INDEX: usize;
     /// `f32` values per Gaussian.
     const FLOATS: usize = std::mem::size_of::<Self>() / std::mem::size_of::<f32>();
-    /// One Adam moment of the group as stored: a bfloat16 per value (`[u16; FLOATS]`, see
-    /// [`crate::model::adam::moment_value`]).
-    type Moment: Pod + Send + Sync + std::fmt::Debug + PartialEq;
+    /// The group's Adam moments as stored: both moments of each value in one word
+    /// (`[StoredMoments; FLOATS]`, see [`StoredMoments`]).
+    type Moments: Pod + Send + Sync + std::fmt::Debug + PartialEq;
 
     /// The component's fields as one flat slice of `f32`, in declaration order.
     fn values(&self) -> &[f32] {
@@ -449,7 +450,7 @@ macro_rules! declare_params {
         impl Param for $component {
             const NAME: &'static str = stringify!($field);
             const INDEX: usize = $index;
-            type Moment = [u16; std::mem::size_of::<$component>() / 4];
+            type Moments = [$crate::model::adam::StoredMoments; std::mem::size_of::<$component>() / 4];
         }
         declare_params!(@impl $index + 1usize; $($rest)*);
     };
@@ -490,52 +491,49 @@ param_groups!(declare_params);
 #[repr(transparent)]
 pub struct Grad<P: Param>(pub P);
 
-/// Adam first and second moments for parameter component `P`, stored as bfloat16 (half the
-/// memory of `f32` moments; see [`crate::model::adam::store_moment`] for how they are
-/// rounded). [`Adam::m`] and [`Adam::v`] give them as `P`s.
+/// Adam first and second moments for parameter component `P`, stored as bfloat16, both
+/// moments of a value in one word (half the memory of `f32` moments; see
+/// [`crate::model::adam::store_moments`] for how they are rounded). [`Adam::m`] and
+/// [`Adam::v`] give them as `P`s.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
-#[repr(C)]
-pub struct Adam<P: Param> {
-    /// First moment (running mean of the gradient).
-    m: P::Moment,
-    /// Second moment (running mean of the squared gradient).
-    v: P::Moment,
-}
+#[repr(transparent)]
+pub struct Adam<P: Param>(P::Moments);
 
 impl<P: Param> Adam<P> {
     /// Moments `m` and `v`, each rounded to the nearest stored value.
     pub fn new(m: &P, v: &P) -> Self {
         let mut adam = Self::zeroed();
-        let store = |from: &P, to: &mut P::Moment| {
-            let to: &mut [u16] = bytemuck::cast_slice_mut(std::slice::from_mut(to));
-            for (to, &from) in to.iter_mut().zip(from.values()) {
-                *to = crate::model::adam::store_moment_nearest(from);
-            }
-        };
-        store(m, &mut adam.m);
-        store(v, &mut adam.v);
+        let pairs = m.values().iter().zip(v.values());
+        for (stored, (&m, &v)) in adam.stored_mut().iter_mut().zip(pairs) {
+            *stored = store_moments_nearest([m, v]);
+        }
         adam
     }
 
     /// The first moment (running mean of the gradient).
     pub fn m(&self) -> P {
-        moment_values(&self.m)
+        self.moment(0)
     }
 
     /// The second moment (running mean of the squared gradient).
     pub fn v(&self) -> P {
-        moment_values(&self.v)
+        self.moment(1)
     }
-}
 
-/// The values of a stored moment.
-fn moment_values<P: Param>(stored: &P::Moment) -> P {
-    let mut values = P::default();
-    let stored: &[u16] = bytemuck::cast_slice(std::slice::from_ref(stored));
-    for (value, &stored) in values.values_mut().iter_mut().zip(stored) {
-        *value = crate::model::adam::moment_value(stored);
+    /// Moment `k` (0: m, 1: v) as values.
+    fn moment(&self, k: usize) -> P {
+        let mut values = P::default();
+        let stored: &[StoredMoments] = bytemuck::cast_slice(std::slice::from_ref(&self.0));
+        for (value, &stored) in values.values_mut().iter_mut().zip(stored) {
+            *value = stored_moments(stored)[k];
+        }
+        values
     }
-    values
+
+    /// The stored words, one per value.
+    fn stored_mut(&mut self) -> &mut [StoredMoments] {
+        bytemuck::cast_slice_mut(std::slice::from_mut(&mut self.0))
+    }
 }
 
 impl<P: Param> Default for Adam<P> {
@@ -544,10 +542,9 @@ impl<P: Param> Default for Adam<P> {
     }
 }
 
-// SAFETY: `Grad<P>` is a transparent wrapper of the plain-data `P`; `Adam<P>` is two
-// `P::Moment`s (`[u16; N]`, both of the same type) in C layout. Neither has padding or invalid
-// bit patterns. This lets the optimiser step a whole column of them as one flat slice (`f32`
-// values, `u16` moments).
+// SAFETY: `Grad<P>` is a transparent wrapper of the plain-data `P`; `Adam<P>` one of
+// `P::Moments` (`[u32; N]`). Neither has padding or invalid bit patterns. This lets the
+// optimiser step a whole column of them as one flat slice (`f32` values, `u32` moment pairs).
 unsafe impl<P: Param> Zeroable for Grad<P> {}
 unsafe impl<P: Param> Pod for Grad<P> {}
 unsafe impl<P: Param> Zeroable for Adam<P> {}

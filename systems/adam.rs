@@ -23,8 +23,8 @@ use crate::systems::prefetch::{RowsAhead, prefetch};
 
 pub use crate::model::adam::{BETA1, BETA2, EPSILON};
 use crate::model::adam::{
-    BiasCorrection, DeferredSums, adam_update, adam_update_stored, deferred_update_stored,
-    moment_seed,
+    BiasCorrection, DeferredSums, StoredMoments, adam_update, adam_update_stored,
+    deferred_update_stored, moment_seed,
 };
 
 /// Salts of [`moment_seed`]: the dense step and the catch-up of skipped steps round the stored
@@ -236,7 +236,7 @@ pub fn adam_step<P: ParamGroup>(
         .for_each(|(mut values, grads, mut moments, slots, clocks)| {
             let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
             let grads: &[f32] = bytemuck::cast_slice(grads);
-            let moments: &mut [u16] = bytemuck::cast_slice_mut(&mut moments[..]);
+            let moments: &mut [StoredMoments] = bytemuck::cast_slice_mut(&mut moments[..]);
             let (Some(reached), Some(slots)) = (reached, slots) else {
                 adam_values(values, grads, moments, P::FLOATS, rates, bias, seed);
                 return;
@@ -245,21 +245,22 @@ pub fn adam_step<P: ParamGroup>(
             let mut coefficients = [0.0; MAX_GROUP_FLOATS];
             let coefficients = &mut coefficients[..rates.len()];
             let all_catch_up = deferred.is_some_and(|(_, all)| all);
-            let mut step_row = |values: &mut [f32], moments: &mut [u16], i: usize, seen: bool| {
-                let x = &mut values[i * floats..(i + 1) * floats];
-                let mv = &mut moments[2 * i * floats..2 * (i + 1) * floats];
-                if let Some((sums, _)) = deferred {
-                    // A Gaussian drawn this iteration was brought up to date before
-                    // (`catch_up_drawable`), so `last` is the previous iteration.
-                    let last = clocks.map_or(0, |c| c[i].0);
-                    let through = if seen { iteration - 1 } else { iteration };
-                    catch_up(x, mv, sums, last, through, coefficients);
-                }
-                if seen {
-                    let g = &grads[i * floats..(i + 1) * floats];
-                    adam_values(x, g, mv, floats, rates, bias, seed);
-                }
-            };
+            let mut step_row =
+                |values: &mut [f32], moments: &mut [StoredMoments], i: usize, seen: bool| {
+                    let x = &mut values[i * floats..(i + 1) * floats];
+                    let mv = &mut moments[i * floats..(i + 1) * floats];
+                    if let Some((sums, _)) = deferred {
+                        // A Gaussian drawn this iteration was brought up to date before
+                        // (`catch_up_drawable`), so `last` is the previous iteration.
+                        let last = clocks.map_or(0, |c| c[i].0);
+                        let through = if seen { iteration - 1 } else { iteration };
+                        catch_up(x, mv, sums, last, through, coefficients);
+                    }
+                    if seen {
+                        let g = &grads[i * floats..(i + 1) * floats];
+                        adam_values(x, g, mv, floats, rates, bias, seed);
+                    }
+                };
             // The Gaussians a view reaches lie scattered over the table: their rows are
             // prefetched a few seen rows ahead of the one being stepped, which otherwise
             // waits on a cache miss per row.
@@ -271,7 +272,7 @@ pub fn adam_step<P: ParamGroup>(
                 }
                 prefetch(&values[i * floats..(i + 1) * floats]);
                 prefetch(&grads[i * floats..(i + 1) * floats]);
-                prefetch(&moments[2 * i * floats..2 * (i + 1) * floats]);
+                prefetch(&moments[i * floats..(i + 1) * floats]);
                 if let Some((row, seen)) = ahead.push(i, seen) {
                     step_row(values, moments, row, seen);
                 }
@@ -311,7 +312,7 @@ fn sums_through<P: ParamGroup>(sums: &mut DeferredSums, settings: &Settings, ite
 #[inline]
 fn catch_up(
     x: &mut [f32],
-    mv: &mut [u16],
+    mv: &mut [StoredMoments],
     sums: &DeferredSums,
     last: u32,
     through: u32,
@@ -324,9 +325,8 @@ fn catch_up(
     sums.coefficients(last, through, coefficients);
     let (decay, epsilon) = (sums.decay(through - last), sums.epsilon(last));
     let seed = moment_seed(through, CATCH_UP);
-    let (m, v) = mv.split_at_mut(x.len());
-    for (((x, m), v), &c) in x.iter_mut().zip(m).zip(v).zip(&*coefficients) {
-        deferred_update_stored(x, [m, v], c, epsilon, decay, seed);
+    for ((x, mv), &c) in x.iter_mut().zip(mv).zip(&*coefficients) {
+        deferred_update_stored(x, mv, c, epsilon, decay, seed);
     }
 }
 
@@ -391,14 +391,15 @@ pub fn catch_up_drawable<P: ParamGroup>(
         .expect("parameter components are stored in tables, so the query is dense")
         .for_each(|(mut values, mut moments, clocks)| {
             let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
-            let moments: &mut [u16] = bytemuck::cast_slice_mut(&mut moments[..]);
+            let moments: &mut [StoredMoments] = bytemuck::cast_slice_mut(&mut moments[..]);
             let mut coefficients = [0.0; MAX_GROUP_FLOATS];
             let coefficients = &mut coefficients[..active];
-            let mut row = |values: &mut [f32], moments: &mut [u16], i: usize, last: u32| {
-                let x = &mut values[i * floats..(i + 1) * floats];
-                let mv = &mut moments[2 * i * floats..2 * (i + 1) * floats];
-                catch_up(x, mv, sums, last, through, coefficients);
-            };
+            let mut row =
+                |values: &mut [f32], moments: &mut [StoredMoments], i: usize, last: u32| {
+                    let x = &mut values[i * floats..(i + 1) * floats];
+                    let mv = &mut moments[i * floats..(i + 1) * floats];
+                    catch_up(x, mv, sums, last, through, coefficients);
+                };
             // The rows lie scattered over the table: each is prefetched a few rows ahead of
             // its update, as in `adam_step`.
             let mut ahead = RowsAhead::default();
@@ -407,7 +408,7 @@ pub fn catch_up_drawable<P: ParamGroup>(
                     continue;
                 }
                 prefetch(&values[i * floats..(i + 1) * floats]);
-                prefetch(&moments[2 * i * floats..2 * (i + 1) * floats]);
+                prefetch(&moments[i * floats..(i + 1) * floats]);
                 if let Some((i, last)) = ahead.push(i, clock.0 & !BEHIND) {
                     row(values, moments, i, last);
                 }
@@ -479,74 +480,70 @@ pub fn deferring(settings: Res<Settings>) -> bool {
     settings.train.deferred_adam
 }
 
-/// Adam on consecutive Gaussians of one group: `values` and `grads` hold `floats` values per
-/// Gaussian, `moments` the stored first then second moment of each (2 × `floats`); the first
-/// `rates.len()` values of each Gaussian are stepped, each with its learning rate, and their
-/// moments stored rounded with `seed`'s bits.
+/// Adam on consecutive Gaussians of one group: `values`, `grads` and `moments` hold `floats`
+/// values per Gaussian (the moments as stored pairs); the first `rates.len()` values of each
+/// Gaussian are stepped, each with its learning rate, and their moments stored rounded with
+/// `seed`'s bits.
 #[inline]
 fn adam_values(
     values: &mut [f32],
     grads: &[f32],
-    moments: &mut [u16],
+    moments: &mut [StoredMoments],
     floats: usize,
     rates: &[f32],
     bias: BiasCorrection,
     seed: u32,
 ) {
-    // The groups' widths as constants, so that the loop over one Gaussian's values unrolls
-    // (most groups hold 1 to 8 values, too few for a loop of unknown length to pay).
+    // The groups' widths as constants, each with a block of 8 Gaussians, so that the update
+    // runs over whole blocks of values as vectors (the rates repeat with the block).
     macro_rules! fixed_widths {
-        ($($width:literal)*) => {
+        ($($width:literal $block:literal)*) => {
             match (floats, rates.len()) {
                 $(($width, $width) => {
-                    return adam_fixed::<$width>(values, grads, moments, rates, bias, seed)
+                    return adam_fixed::<$width, $block>(values, grads, moments, rates, bias, seed)
                 })*
                 _ => {}
             }
         };
     }
-    fixed_widths!(1 3 6 8 16 28 45);
+    fixed_widths!(1 8 3 24 6 48 8 64 16 128 28 224 45 360);
     // Any other width, or a group whose last values are not stepped.
     let gaussians = values
         .chunks_exact_mut(floats)
         .zip(grads.chunks_exact(floats))
-        .zip(moments.chunks_exact_mut(2 * floats));
+        .zip(moments.chunks_exact_mut(floats));
     for ((x, g), mv) in gaussians {
-        let (m, v) = mv.split_at_mut(floats);
-        for ((((x, g), m), v), lr) in x.iter_mut().zip(g).zip(m).zip(v).zip(rates) {
-            adam_update_stored(x, *g, [m, v], *lr, bias, seed);
+        for (((x, g), mv), lr) in x.iter_mut().zip(g).zip(mv).zip(rates) {
+            adam_update_stored(x, *g, mv, *lr, bias, seed);
         }
     }
 }
 
-/// [`adam_values`] for groups of `WIDTH` values, all stepped.
+/// [`adam_values`] for groups of `WIDTH` values, all stepped, in blocks of `BLOCK` values
+/// (8 Gaussians) and then the Gaussians left over.
 #[inline]
-fn adam_fixed<const WIDTH: usize>(
+fn adam_fixed<const WIDTH: usize, const BLOCK: usize>(
     values: &mut [f32],
     grads: &[f32],
-    moments: &mut [u16],
+    moments: &mut [StoredMoments],
     rates: &[f32],
     bias: BiasCorrection,
     seed: u32,
 ) {
-    let rates: &[f32; WIDTH] = rates.try_into().expect("one rate per value");
-    let gaussians = values
-        .as_chunks_mut::<WIDTH>()
-        .0
-        .iter_mut()
-        .zip(grads.as_chunks::<WIDTH>().0)
-        .zip(moments.as_chunks_mut::<WIDTH>().0.as_chunks_mut::<2>().0);
-    for ((x, g), [m, v]) in gaussians {
-        for j in 0..WIDTH {
-            adam_update_stored(
-                &mut x[j],
-                g[j],
-                [&mut m[j], &mut v[j]],
-                rates[j],
-                bias,
-                seed,
-            );
+    debug_assert_eq!(BLOCK % WIDTH, 0);
+    let block_rates: [f32; BLOCK] = std::array::from_fn(|k| rates[k % WIDTH]);
+    let (value_blocks, values_left) = values.as_chunks_mut::<BLOCK>();
+    let (grad_blocks, grads_left) = grads.as_chunks::<BLOCK>();
+    let (moment_blocks, moments_left) = moments.as_chunks_mut::<BLOCK>();
+    let blocks = value_blocks.iter_mut().zip(grad_blocks).zip(moment_blocks);
+    for ((x, g), mv) in blocks {
+        for k in 0..BLOCK {
+            adam_update_stored(&mut x[k], g[k], &mut mv[k], block_rates[k], bias, seed);
         }
+    }
+    let left = values_left.iter_mut().zip(grads_left).zip(moments_left);
+    for (k, ((x, g), mv)) in left.enumerate() {
+        adam_update_stored(x, *g, mv, block_rates[k], bias, seed);
     }
 }
 
@@ -640,7 +637,7 @@ pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::adam::store_moment_nearest;
+    use crate::model::adam::store_moments_nearest;
 
     /// The chunked update steps each Gaussian's active values exactly as the scalar
     /// [`adam_update_stored`] does (bit for bit), whatever the group's width, and leaves the values
@@ -651,6 +648,7 @@ mod tests {
         for (floats, active) in [
             (1, 1),
             (3, 3),
+            (6, 6),
             (5, 5),
             (8, 8),
             (16, 16),
@@ -665,18 +663,16 @@ mod tests {
             let g: Vec<f32> = (0..gaussians * floats)
                 .map(|i| 1e-3 * value(i + 13))
                 .collect();
-            let mut mv: Vec<u16> = (0..2 * gaussians * floats)
-                .map(|i| store_moment_nearest(1e-4 * value(i + 29).abs()))
+            let mut mv: Vec<StoredMoments> = (0..gaussians * floats)
+                .map(|i| store_moments_nearest([1e-3 * value(i + 29), 1e-4 * value(i + 31).abs()]))
                 .collect();
             let rates: Vec<f32> = (0..floats).map(|j| 1e-3 * (j + 1) as f32).collect();
 
             let (mut x_ref, mut mv_ref) = (x.clone(), mv.clone());
             for i in 0..gaussians {
-                let (m, v) = mv_ref[2 * floats * i..2 * floats * (i + 1)].split_at_mut(floats);
                 for j in 0..active {
                     let k = floats * i + j;
-                    let moments = [&mut m[j], &mut v[j]];
-                    adam_update_stored(&mut x_ref[k], g[k], moments, rates[j], bias, 11);
+                    adam_update_stored(&mut x_ref[k], g[k], &mut mv_ref[k], rates[j], bias, 11);
                 }
             }
             adam_values(&mut x, &g, &mut mv, floats, &rates[..active], bias, 11);

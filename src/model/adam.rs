@@ -36,49 +36,63 @@ pub fn adam_update(x: &mut f32, g: f32, m: &mut f32, v: &mut f32, lr: f32, bias:
     *x -= step_size * *m / ((*v / bias.second).sqrt() + EPSILON);
 }
 
-/// Adam's moments are stored as bfloat16 (the top half of an `f32`), half the memory of `f32`
-/// moments: the value of a stored moment.
+/// One value's two Adam moments as stored: each a bfloat16 (the top half of an `f32`), half
+/// the memory of `f32` moments, m in the low half of the word and v in the high half, so that
+/// a value's moments are read and written together.
+pub type StoredMoments = u32;
+
+/// The moments [m, v] of a stored pair.
 #[inline]
-pub fn moment_value(stored: u16) -> f32 {
-    f32::from_bits(u32::from(stored) << 16)
+pub fn stored_moments(stored: StoredMoments) -> [f32; 2] {
+    [
+        f32::from_bits(stored << 16),
+        f32::from_bits(stored & 0xFFFF_0000),
+    ]
 }
 
-/// A moment as stored, rounded to the nearest bfloat16 (ties to even; NaN stays NaN): for
-/// moments that come from elsewhere (a checkpoint, the GPU), not for Adam's steps, which
-/// [`store_moment`] rounds.
+/// A moment's bfloat16 bits, rounded to nearest (ties to even; NaN stays NaN).
 #[inline]
-pub fn store_moment_nearest(moment: f32) -> u16 {
+pub fn bfloat16_nearest(moment: f32) -> u32 {
     let bits = moment.to_bits();
     let rounded = bits.wrapping_add(0x7FFF + ((bits >> 16) & 1)) >> 16;
-    if moment.is_nan() {
-        0x7FC0
-    } else {
-        rounded as u16
-    }
+    if moment.is_nan() { 0x7FC0 } else { rounded }
 }
 
-/// A moment as stored after an Adam step: rounded to one of its two neighbouring bfloat16
-/// values at random, away from zero with probability equal to its distance from the one
-/// nearer zero (stochastic rounding), so that the stored moment is right on average. Rounded
-/// to nearest, the moments would stall: a step moves v by at most 1 − β2 = 0.1 % of itself,
-/// less than half of bfloat16's spacing (0.2–0.4 %), so a v without gradient would never decay,
-/// and m would stop short of a steady gradient by up to five spacings. The random bits are a
-/// hash of the value and `seed` (which changes each step): the same run gives the same bits on
-/// any thread count.
+/// Moments [m, v] as stored, each rounded to the nearest bfloat16: for moments that come from
+/// elsewhere (a checkpoint, the GPU), not for Adam's steps, which [`store_moments`] rounds.
 #[inline]
-pub fn store_moment(moment: f32, seed: u32) -> u16 {
-    let bits = moment.to_bits();
-    let noise = mix_bits(bits ^ seed) & 0xFFFF;
-    (bits.wrapping_add(noise) >> 16) as u16
+pub fn store_moments_nearest([m, v]: [f32; 2]) -> StoredMoments {
+    bfloat16_nearest(m) | (bfloat16_nearest(v) << 16)
 }
 
-/// The seed of [`store_moment`] for step `step` of an update kind (`salt`: the dense step and
+/// Moments [m, v] as stored after an Adam step: each rounded to one of its two neighbouring
+/// bfloat16 values at random, away from zero with probability equal to its distance from the
+/// one nearer zero (stochastic rounding), so that the stored moments are right on average.
+/// Rounded to nearest, the moments would stall: a step moves v by at most 1 − β2 = 0.1 % of
+/// itself, less than half of bfloat16's spacing (0.2–0.4 %), so a v without gradient would
+/// never decay, and m would stop short of a steady gradient by up to five spacings. The random
+/// bits (16 for each moment) are a hash of the two moments and `seed` (which changes each
+/// step), not of a position or a thread's random state, so the rounding keeps runs
+/// reproducible whatever order the work runs in. One multiplication makes the hash: for a
+/// given pair of moments its bits are uniform over the seeds, which is what keeps each
+/// moment right on average over the steps (a stronger hash cost a fifth of Adam's time).
+#[inline]
+pub fn store_moments([m, v]: [f32; 2], seed: u32) -> StoredMoments {
+    let (m_bits, v_bits) = (m.to_bits(), v.to_bits());
+    let noise = (m_bits ^ v_bits.rotate_left(16) ^ seed).wrapping_mul(0x9E37_79B1);
+    let m_stored = m_bits.wrapping_add(noise & 0xFFFF) >> 16;
+    let v_stored = v_bits.wrapping_add(noise >> 16) & 0xFFFF_0000;
+    m_stored | v_stored
+}
+
+/// The seed of [`store_moments`] for step `step` of an update kind (`salt`: the dense step and
 /// the catch-up of deferred steps draw different bits).
 pub fn moment_seed(step: u32, salt: u32) -> u32 {
     mix_bits(step.wrapping_mul(0x9E37_79B9) ^ salt)
 }
 
-/// A 32-bit integer hash with well-mixed low bits (the "lowbias32" multiply–xorshift rounds).
+/// A 32-bit integer hash whose bits are all well mixed (the "lowbias32" multiply–xorshift
+/// rounds).
 #[inline]
 fn mix_bits(mut x: u32) -> u32 {
     x ^= x >> 16;
@@ -88,29 +102,20 @@ fn mix_bits(mut x: u32) -> u32 {
     x ^ (x >> 16)
 }
 
-/// Stores the moments `m` and `v` after a step ([`store_moment`]; the second with other bits).
-#[inline]
-fn store_moments(stored: [&mut u16; 2], [m, v]: [f32; 2], seed: u32) {
-    let [m_stored, v_stored] = stored;
-    *m_stored = store_moment(m, seed);
-    *v_stored = store_moment(v, seed.wrapping_add(0x9E37_79B9));
-}
-
-/// [`adam_update`] of a value whose moments are stored ([`moment_value`]): the value moves by the
-/// moments in full precision, which are then stored rounded.
+/// [`adam_update`] of a value whose moments are stored ([`StoredMoments`]): the value moves by
+/// the moments in full precision, which are then stored rounded ([`store_moments`]).
 #[inline]
 pub fn adam_update_stored(
     x: &mut f32,
     g: f32,
-    stored: [&mut u16; 2],
+    stored: &mut StoredMoments,
     lr: f32,
     bias: BiasCorrection,
     seed: u32,
 ) {
-    let [m_stored, v_stored] = stored;
-    let (mut m, mut v) = (moment_value(*m_stored), moment_value(*v_stored));
+    let [mut m, mut v] = stored_moments(*stored);
     adam_update(x, g, &mut m, &mut v, lr, bias);
-    store_moments([m_stored, v_stored], [m, v], seed);
+    *stored = store_moments([m, v], seed);
 }
 
 /// The ratio r = β1/√β2 by which each skipped step's share of the first moment over the root
@@ -243,20 +248,19 @@ pub fn deferred_update(
     *v *= decay[1];
 }
 
-/// [`deferred_update`] of a value whose moments are stored ([`moment_value`]).
+/// [`deferred_update`] of a value whose moments are stored ([`StoredMoments`]).
 #[inline]
 pub fn deferred_update_stored(
     x: &mut f32,
-    stored: [&mut u16; 2],
+    stored: &mut StoredMoments,
     coefficient: f32,
     epsilon: f32,
     decay: [f32; 2],
     seed: u32,
 ) {
-    let [m_stored, v_stored] = stored;
-    let (mut m, mut v) = (moment_value(*m_stored), moment_value(*v_stored));
+    let [mut m, mut v] = stored_moments(*stored);
     deferred_update(x, &mut m, &mut v, coefficient, epsilon, decay);
-    store_moments([m_stored, v_stored], [m, v], seed);
+    *stored = store_moments([m, v], seed);
 }
 
 /// ε on the scale of the raw second moment at the first step after `last`: dense Adam adds ε
@@ -358,21 +362,22 @@ mod tests {
 mod storage_tests {
     use super::*;
 
-    /// The two bfloat16 neighbours of `x` (equal when `x` is one).
+    /// The two bfloat16 neighbours of `x` (equal when `x` is one), nearer zero first.
     fn neighbours(x: f32) -> (f32, f32) {
-        let down = f32::from_bits(x.to_bits() & 0xFFFF_0000);
-        let up = if down == x {
+        let toward_zero = f32::from_bits(x.to_bits() & 0xFFFF_0000);
+        let away = if toward_zero == x {
             x
         } else {
             f32::from_bits((x.to_bits() & 0xFFFF_0000) + 0x1_0000)
         };
-        (down, up)
+        (toward_zero, away)
     }
 
     /// Moments from elsewhere round to the nearer bfloat16 neighbour (ties to the even one),
     /// keep their sign and NaN, and every bfloat16 value is stored exactly.
     #[test]
     fn moments_round_to_nearest() {
+        let nearest = |x: f32| stored_moments(store_moments_nearest([x, x.abs()]));
         for x in [
             1.0f32,
             -3.5e-7,
@@ -384,102 +389,91 @@ mod storage_tests {
             -0.0,
             0.000_123_45,
         ] {
-            let stored = moment_value(store_moment_nearest(x));
             let (down, up) = neighbours(x.abs());
-            let nearest = if (x.abs() - down) <= (up - x.abs()) {
+            let expected = if (x.abs() - down) <= (up - x.abs()) {
                 down
             } else {
                 up
             };
-            assert_eq!(stored, nearest.copysign(x), "{x:e}");
-            assert_eq!(store_moment_nearest(stored), store_moment_nearest(x));
+            assert_eq!(nearest(x), [expected.copysign(x), expected], "{x:e}");
+            let stored = nearest(x)[0];
+            assert_eq!(nearest(stored), nearest(x));
         }
         // 1 + 2⁻⁸ lies halfway between 1 and 1 + 2⁻⁷: ties go to the even mantissa (1).
-        assert_eq!(moment_value(store_moment_nearest(1.0 + 1.0 / 256.0)), 1.0);
-        assert_eq!(
-            moment_value(store_moment_nearest(1.0 + 3.0 / 256.0)),
-            1.0 + 4.0 / 256.0
-        );
-        assert!(moment_value(store_moment_nearest(f32::NAN)).is_nan());
+        assert_eq!(nearest(1.0 + 1.0 / 256.0), [1.0; 2]);
+        assert_eq!(nearest(1.0 + 3.0 / 256.0), [1.0 + 4.0 / 256.0; 2]);
+        assert!(nearest(f32::NAN).iter().all(|m| m.is_nan()));
     }
 
     /// Moments after a step round to one of their two bfloat16 neighbours, away from zero with
     /// probability equal to the distance from the one nearer zero: over 20 000 seeds the mean
-    /// of the stored values is within 1 % of the spacing of the value itself.
+    /// of the stored values is within 1 % of the spacing of the value itself, for m and v.
     #[test]
     fn moments_round_stochastically_without_bias() {
-        for x in [
+        let values = [
             1.0f32 + 0.3 / 128.0,
             2.0e-9 * 1.0007,
             0.123_456_7,
             5.0e-4,
             -7.7e-5,
-        ] {
-            let (down, up) = neighbours(x.abs());
-            let (down, up) = (down.copysign(x), up.copysign(x));
+        ];
+        for (x, y) in values.into_iter().zip(values.into_iter().rev()) {
+            let pair = [x, y.abs()];
             let seeds = 20_000;
-            let mut sum = 0.0f64;
+            let mut sums = [0.0f64; 2];
             for step in 0..seeds {
-                let stored = moment_value(store_moment(x, moment_seed(step, 0)));
-                assert!(stored == down || stored == up, "{x:e} stored as {stored:e}");
-                sum += f64::from(stored);
+                let stored = stored_moments(store_moments(pair, moment_seed(step, 0)));
+                for ((sum, stored), x) in sums.iter_mut().zip(stored).zip(pair) {
+                    let (down, up) = neighbours(x.abs());
+                    let (down, up) = (down.copysign(x), up.copysign(x));
+                    assert!(stored == down || stored == up, "{x:e} stored as {stored:e}");
+                    *sum += f64::from(stored);
+                }
             }
-            let mean = sum / f64::from(seeds);
-            let spacing = f64::from(up - down).abs();
-            assert!(
-                (mean - f64::from(x)).abs() <= 0.01 * spacing,
-                "{x:e}: mean {mean:e}, spacing {spacing:e}"
-            );
+            for (sum, x) in sums.iter().zip(pair) {
+                let mean = sum / f64::from(seeds);
+                let (down, up) = neighbours(x.abs());
+                let spacing = f64::from(up - down);
+                assert!(
+                    (mean - f64::from(x)).abs() <= 0.01 * spacing,
+                    "{x:e}: mean {mean:e}, spacing {spacing:e}"
+                );
+            }
         }
     }
 
     /// Second moments without gradient decay as β2^steps when stored at every step (rounded
     /// to nearest they would never move: each step changes them by less than half a spacing):
     /// over 2 000 steps, 256 of them end on average within 2 % of β2^2000 of where they started
-    /// (each within 30 %: the roundings add up as a random walk), and one with a steady
-    /// gradient settles at g² (to 2 %).
+    /// (each within 30 %: the roundings add up as a random walk), and moments with a steady
+    /// gradient settle at g and g² (to 1 and 2 %).
     #[test]
-    fn stored_second_moments_follow_adam() {
+    fn stored_moments_follow_adam() {
         let bias = BiasCorrection::after(1000);
         let steps = 2000;
         let decay = BETA2.powi(steps as i32);
         let mut ratios = 0.0;
         for k in 0..256 {
             let start = 1e-6 * (1.0 + k as f32 / 32.0);
-            let (mut x, mut m, mut v) = (0.0, 0, store_moment(start, k));
-            let start = moment_value(v);
+            let (mut x, mut stored) = (0.0, store_moments([0.0, start], k));
+            let start = stored_moments(stored)[1];
             for step in 0..steps {
-                adam_update_stored(
-                    &mut x,
-                    0.0,
-                    [&mut m, &mut v],
-                    0.0,
-                    bias,
-                    moment_seed(step, k),
-                );
+                adam_update_stored(&mut x, 0.0, &mut stored, 0.0, bias, moment_seed(step, k));
             }
-            let ratio = moment_value(v) / (start * decay);
+            let ratio = stored_moments(stored)[1] / (start * decay);
             assert!((ratio - 1.0).abs() < 0.3, "{k}: {ratio}");
             ratios += ratio / 256.0;
         }
         assert!((ratios - 1.0).abs() < 0.02, "mean ratio {ratios}");
 
-        let mut x = 0.0;
-        let (mut m, mut v) = (0, 0);
+        let (mut x, mut stored) = (0.0, 0);
         let g = 3e-3f32;
         for step in 0..20_000 {
-            adam_update_stored(&mut x, g, [&mut m, &mut v], 0.0, bias, moment_seed(step, 1));
+            adam_update_stored(&mut x, g, &mut stored, 0.0, bias, moment_seed(step, 1));
         }
-        assert!(
-            (moment_value(v) / (g * g) - 1.0).abs() < 0.02,
-            "{:e}",
-            moment_value(v)
-        );
-        assert!(
-            (moment_value(m) / g - 1.0).abs() < 0.01,
-            "{:e}",
-            moment_value(m)
-        );
+        let [m, v] = stored_moments(stored);
+        assert!((v / (g * g) - 1.0).abs() < 0.02, "{v:e}");
+        assert!((m / g - 1.0).abs() < 0.01, "{m:e}");
     }
 
     /// Values stepped with stored moments follow those stepped with `f32` moments: 256 values
@@ -491,15 +485,16 @@ mod storage_tests {
     fn stored_moments_move_values_as_f32_moments_do() {
         let mut worst = 0.0f32;
         for k in 0..256u32 {
-            let g = 1e-6 * 10f32.powf(4.0 * k as f32 / 255.0) * if k % 2 == 0 { 1.0 } else { -1.0 };
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let g = 1e-6 * 10f32.powf(4.0 * k as f32 / 255.0) * sign;
             let (mut x, mut m, mut v) = (0.0f32, 0.0f32, 0.0f32);
-            let (mut x_stored, mut stored) = (0.0f32, [0u16; 2]);
+            let (mut x_stored, mut stored) = (0.0f32, 0);
             for step in 1..=100u32 {
                 let g = if (step + k) % 3 == 0 { g } else { 0.0 };
                 let bias = BiasCorrection::after(step as i32);
                 adam_update(&mut x, g, &mut m, &mut v, 1e-3, bias);
-                let [ms, vs] = &mut stored;
-                adam_update_stored(&mut x_stored, g, [ms, vs], 1e-3, bias, moment_seed(step, k));
+                let seed = moment_seed(step, k);
+                adam_update_stored(&mut x_stored, g, &mut stored, 1e-3, bias, seed);
             }
             worst = worst.max((x_stored - x).abs() / x.abs());
         }
