@@ -520,7 +520,8 @@ fn adam_values(
 }
 
 /// [`adam_values`] for groups of `WIDTH` values, all stepped, in blocks of `BLOCK` values
-/// (8 Gaussians) and then the Gaussians left over.
+/// (8 Gaussians) and then the Gaussians left over (all of them when one row is stepped, as the
+/// sparse paths of [`adam_step`] do).
 #[inline]
 fn adam_fixed<const WIDTH: usize, const BLOCK: usize>(
     values: &mut [f32],
@@ -531,19 +532,29 @@ fn adam_fixed<const WIDTH: usize, const BLOCK: usize>(
     seed: u32,
 ) {
     debug_assert_eq!(BLOCK % WIDTH, 0);
-    let block_rates: [f32; BLOCK] = std::array::from_fn(|k| rates[k % WIDTH]);
+    let rates: &[f32; WIDTH] = rates.try_into().expect("one rate per value");
     let (value_blocks, values_left) = values.as_chunks_mut::<BLOCK>();
     let (grad_blocks, grads_left) = grads.as_chunks::<BLOCK>();
     let (moment_blocks, moments_left) = moments.as_chunks_mut::<BLOCK>();
-    let blocks = value_blocks.iter_mut().zip(grad_blocks).zip(moment_blocks);
-    for ((x, g), mv) in blocks {
-        for k in 0..BLOCK {
-            adam_update_stored(&mut x[k], g[k], &mut mv[k], block_rates[k], bias, seed);
+    if !value_blocks.is_empty() {
+        let block_rates: [f32; BLOCK] = std::array::from_fn(|k| rates[k % WIDTH]);
+        let blocks = value_blocks.iter_mut().zip(grad_blocks).zip(moment_blocks);
+        for ((x, g), mv) in blocks {
+            for k in 0..BLOCK {
+                adam_update_stored(&mut x[k], g[k], &mut mv[k], block_rates[k], bias, seed);
+            }
         }
     }
-    let left = values_left.iter_mut().zip(grads_left).zip(moments_left);
-    for (k, ((x, g), mv)) in left.enumerate() {
-        adam_update_stored(x, *g, mv, block_rates[k], bias, seed);
+    let left = values_left
+        .as_chunks_mut::<WIDTH>()
+        .0
+        .iter_mut()
+        .zip(grads_left.as_chunks::<WIDTH>().0)
+        .zip(moments_left.as_chunks_mut::<WIDTH>().0);
+    for ((x, g), mv) in left {
+        for j in 0..WIDTH {
+            adam_update_stored(&mut x[j], g[j], &mut mv[j], rates[j], bias, seed);
+        }
     }
 }
 

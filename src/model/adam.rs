@@ -52,7 +52,7 @@ pub fn stored_moments(stored: StoredMoments) -> [f32; 2] {
 
 /// A moment's bfloat16 bits, rounded to nearest (ties to even; NaN stays NaN).
 #[inline]
-pub fn bfloat16_nearest(moment: f32) -> u32 {
+fn bfloat16_nearest(moment: f32) -> u32 {
     let bits = moment.to_bits();
     let rounded = bits.wrapping_add(0x7FFF + ((bits >> 16) & 1)) >> 16;
     if moment.is_nan() { 0x7FC0 } else { rounded }
@@ -75,7 +75,8 @@ pub fn store_moments_nearest([m, v]: [f32; 2]) -> StoredMoments {
 /// step), not of a position or a thread's random state, so the rounding keeps runs
 /// reproducible whatever order the work runs in. One multiplication makes the hash: for a
 /// given pair of moments its bits are uniform over the seeds, which is what keeps each
-/// moment right on average over the steps (a stronger hash cost a fifth of Adam's time).
+/// moment right on average over the steps (with the two-multiplication hash `mix_bits`, Adam
+/// at 1 M Gaussians took 60–67 ms against 53–58).
 #[inline]
 pub fn store_moments([m, v]: [f32; 2], seed: u32) -> StoredMoments {
     let (m_bits, v_bits) = (m.to_bits(), v.to_bits());
