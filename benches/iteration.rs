@@ -45,11 +45,12 @@ fn stages(c: &mut Criterion) {
     let mut world = warm_world(n, w, h, false);
     let camera = world.resource::<ViewSample>().camera;
     let (wu, hu) = (w as usize, h as usize);
+    let deformed = splat::deformed_by_slot(&mut world);
     group.bench_function("project_and_bin", |b| {
         b.iter(|| {
             let mut buffers = world.resource_mut::<SplatBuffers>();
             let buffers = &mut *buffers;
-            splat::project_all(&buffers.deformed, &camera, 0.01, &mut buffers.splats);
+            splat::project_all(&deformed, &camera, 0.01, &mut buffers.splats);
             buffers.rasterizer.bin(&buffers.splats, wu, hu);
         })
     });

@@ -232,8 +232,7 @@ fn scratch_bytes(b: &SplatBuffers) -> usize {
     fn bytes<T>(v: &Vec<T>) -> usize {
         v.capacity() * std::mem::size_of::<T>()
     }
-    bytes(&b.deformed)
-        + bytes(&b.splats)
+    bytes(&b.splats)
         + bytes(&b.splat_grads)
         + bytes(&b.deformed_grads)
         + bytes(&b.ndc_grad_norm)
@@ -412,11 +411,12 @@ fn time_cpu_stages(
     let (w, h) = (camera.width as usize, camera.height as usize);
     let train = &world.resource::<Settings>().train;
     let (near_plane, background) = (train.near_plane, train.background);
+    let deformed = splat::deformed_by_slot(world);
     let mut buffers = world.resource_mut::<SplatBuffers>();
     let b = &mut *buffers;
     samples.record(
         "  project",
-        time_ms(|| splat::project_all(&b.deformed, &camera, near_plane, &mut b.splats)),
+        time_ms(|| splat::project_all(&deformed, &camera, near_plane, &mut b.splats)),
     );
     samples.record(
         "  bin + depth sort",

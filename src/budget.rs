@@ -19,7 +19,7 @@
 
 use std::mem::size_of;
 
-use crate::components::{Deformed, gaussian_bytes};
+use crate::components::gaussian_bytes;
 use crate::data::Dataset;
 use crate::raster::{PACKED_SPLAT_BYTES, Splat, SplatGrad};
 use crate::resources::DeformedGrad;
@@ -41,11 +41,10 @@ pub const HEADROOM: f64 = 1.25;
 pub fn bytes_per_gaussian(sh_degree: u32) -> usize {
     // ECS storage: the components plus the entity id in its table and its location record.
     let ecs = gaussian_bytes(sh_degree) + 8 + 16;
-    // Splatting arrays indexed by slot: deformed values, splat, packed splat, gradients and
-    // the backward's second half-sum of them, NDC gradient norm, tile rectangle, entry offset,
-    // depth key and its radix-sort buffer, and depth-ordered binning record.
-    let slots = size_of::<Deformed>()
-        + size_of::<Splat>()
+    // Splatting arrays indexed by slot: splat, packed splat, gradients and the backward's
+    // second half-sum of them, NDC gradient norm, tile rectangle, entry offset, depth key and
+    // its radix-sort buffer, and depth-ordered binning record.
+    let slots = size_of::<Splat>()
         + PACKED_SPLAT_BYTES
         + 2 * size_of::<SplatGrad>()
         + size_of::<DeformedGrad>()

@@ -34,6 +34,7 @@ pub fn backward_splats(
     loss: Res<LossImage>,
     mut buffers: ResMut<SplatBuffers>,
     gpu: Option<ResMut<GpuRasterizer>>,
+    gaussians: Query<(&Deformed, &SplatSlot)>,
 ) -> Result {
     let buffers = &mut *buffers;
     let camera = sample.camera;
@@ -52,7 +53,6 @@ pub fn backward_splats(
     // gradients are at hand, and the chain rule through the projection.
     let half = glam::Vec2::new(0.5 * camera.width as f32, 0.5 * camera.height as f32);
     let SplatBuffers {
-        deformed,
         splats,
         splat_grads,
         deformed_grads,
@@ -64,37 +64,56 @@ pub fn backward_splats(
     ndc_grad_norm.resize(slots, 0.0);
     deformed_grads.resize(slots, DeformedGrad::default());
     gradient_reached.resize(slots, false);
-    deformed
-        .par_iter()
-        .zip(splats.par_iter())
-        .zip(splat_grads.par_iter())
-        .zip(ndc_grad_norm.par_iter_mut())
-        .zip(deformed_grads.par_iter_mut())
-        .zip(gradient_reached.par_iter_mut())
-        .for_each(|(((((d, s), g), ndc_norm), grad), reached)| {
-            *ndc_norm = ndc_gradient_norm(s, g, half);
-            // Splats behind opaque pixels get no gradient: nothing to chain back.
-            if !s.visible || *g == SplatGrad::default() {
-                (*grad, *reached) = (DeformedGrad::default(), false);
-                return;
-            }
-            let p = project_backward(
-                Vec3::from_array(d.mean),
-                d.rotation,
-                Vec3::from_array(d.scale),
-                &camera,
-                g.mean2d,
-                g.conic,
-            );
-            *grad = DeformedGrad {
-                mean: p.mean,
-                rotation: p.quat,
-                scale: p.scale,
-                opacity: g.opacity,
-                color: g.color,
-            };
-            *reached = *grad != DeformedGrad::default();
-        });
+    // The deformed Gaussians are read from their components, table by table: the splatting
+    // stage numbered the slots of each table's rows consecutively from its first.
+    let tables = gaussians
+        .contiguous_iter()
+        .expect("Gaussian components are stored in tables, so the query is dense");
+    for (deformed, table_slots) in tables {
+        let Some(first) = table_slots.first() else {
+            continue;
+        };
+        let range = first.0 as usize..first.0 as usize + deformed.len();
+        if range.end > slots {
+            return Err(format!(
+                "the splatting stage drew {slots} Gaussians but the population has more: the \
+                 splat system must run after the last change to the population and before \
+                 backward_splats"
+            )
+            .into());
+        }
+        deformed
+            .par_iter()
+            .zip(splats[range.clone()].par_iter())
+            .zip(splat_grads[range.clone()].par_iter())
+            .zip(ndc_grad_norm[range.clone()].par_iter_mut())
+            .zip(deformed_grads[range.clone()].par_iter_mut())
+            .zip(gradient_reached[range].par_iter_mut())
+            .for_each(|(((((d, s), g), ndc_norm), grad), reached)| {
+                *ndc_norm = ndc_gradient_norm(s, g, half);
+                // Splats behind opaque pixels get no gradient: nothing to chain back.
+                if !s.visible || *g == SplatGrad::default() {
+                    (*grad, *reached) = (DeformedGrad::default(), false);
+                    return;
+                }
+                let p = project_backward(
+                    Vec3::from_array(d.mean),
+                    d.rotation,
+                    Vec3::from_array(d.scale),
+                    &camera,
+                    g.mean2d,
+                    g.conic,
+                );
+                *grad = DeformedGrad {
+                    mean: p.mean,
+                    rotation: p.quat,
+                    scale: p.scale,
+                    opacity: g.opacity,
+                    color: g.color,
+                };
+                *reached = *grad != DeformedGrad::default();
+            });
+    }
     Ok(())
 }
 

@@ -10,7 +10,7 @@ use crate::model::project::project_beyond;
 use crate::raster::Splat;
 use crate::resources::{Settings, SplatBuffers, ViewSample};
 
-/// Gathers the deformed Gaussians into slots, projects them (EWA) and blends the image, on the
+/// Projects the deformed Gaussians (EWA) into slots and blends the image, on the
 /// GPU when there is a [`GpuRasterizer`] resource.
 pub fn splat(
     settings: Res<Settings>,
@@ -22,17 +22,15 @@ pub fn splat(
     let buffers = &mut *buffers;
     let camera = sample.camera;
     let near_plane = settings.train.near_plane;
-    buffers.deformed.clear();
     buffers.splats.clear();
-    // Table by table (one, unless some Gaussians lack an optional group): a copy of the
-    // column, its projection and the slot numbers each in one parallel pass, rather than one
-    // entity at a time.
+    // Table by table (one, unless some Gaussians lack an optional group): the column's
+    // projection and the slot numbers each in one parallel pass, rather than one entity at a
+    // time. The slots number the tables' rows in this order.
     let tables = gaussians
         .contiguous_iter_mut()
         .expect("the splatting stage's components are stored in tables, so the query is dense");
     for (deformed, mut slots) in tables {
-        let first = buffers.deformed.len();
-        buffers.deformed.extend_from_slice(deformed);
+        let first = buffers.splats.len();
         extend_projected(deformed, &camera, near_plane, &mut buffers.splats);
         slots[..]
             .par_iter_mut()
@@ -58,6 +56,17 @@ pub fn splat(
         ),
     }
     Ok(())
+}
+
+/// A copy of the deformed Gaussians in slot order, as the last run of [`splat`] numbered them
+/// (for tools and tests that work on the slot-indexed arrays).
+pub fn deformed_by_slot(world: &mut World) -> Vec<Deformed> {
+    let slots = world.resource::<SplatBuffers>().splats.len();
+    let mut out = vec![Deformed::default(); slots];
+    for (d, slot) in world.query::<(&Deformed, &SplatSlot)>().iter(world) {
+        out[slot.0 as usize] = *d;
+    }
+    out
 }
 
 /// Projects every deformed Gaussian into `splats` (same order); those nearer than `near_plane`

@@ -48,11 +48,12 @@ fn warm_splatting_path_does_not_allocate() {
     let camera = world.resource::<ViewSample>().camera;
     let mut loss = std::mem::take(&mut *world.resource_mut::<LossImage>());
     let target = loss.target.clone();
+    let deformed = splat::deformed_by_slot(&mut world);
     let mut buffers = world.resource_mut::<SplatBuffers>();
     let b = &mut *buffers;
 
     let run = |b: &mut SplatBuffers, loss: &mut LossImage| {
-        splat::project_all(&b.deformed, &camera, 0.01, &mut b.splats);
+        splat::project_all(&deformed, &camera, 0.01, &mut b.splats);
         b.rasterizer
             .forward(&b.splats, w as usize, h as usize, [0.0; 3], &mut b.render);
         training_loss(

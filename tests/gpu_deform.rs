@@ -32,7 +32,7 @@ use tadgs::resources::{
 use tadgs::scene::{DataSource, PhaseModel, SceneConfig};
 use tadgs::systems::backward::{backward_parameters, backward_splats};
 use tadgs::systems::deform::deform;
-use tadgs::systems::splat::{project_all, splat};
+use tadgs::systems::splat::{deformed_by_slot, project_all, splat};
 use tadgs::train::insert_render_resources;
 
 // Tolerance: each GPU value v of a CPU value c is held to
@@ -240,6 +240,8 @@ fn random_gaussian(
 struct CpuResult {
     params: Vec<GaussianParams>,
     warped: Vec<WarpedTime>,
+    /// The deformed Gaussians in slot order.
+    deformed: Vec<Deformed>,
     buffers: SplatBuffers,
     grads: ParamGradients,
     /// Per Gaussian and gradient group: how far the CPU's own gradients move when its inputs
@@ -314,20 +316,17 @@ fn run_cpu(
     // The conditioning of each Gaussian's gradients: rerun the backward systems with the
     // deformed Gaussians they read (projection and SH direction) nudged by up to PERTURBATION
     // relative, and record how far each gradient group moves.
-    let reference = world.resource::<SplatBuffers>().deformed.clone();
+    let reference = deformed_by_slot(&mut world);
     out.noise = vec![[0.0; 7]; reference.len()];
     for _ in 0..NOISE_TRIALS {
-        {
-            let mut buffers = world.resource_mut::<SplatBuffers>();
-            let mut nudge = |v: &mut f32| *v *= 1.0 + rng.random_range(-PERTURBATION..PERTURBATION);
-            for d in &mut buffers.deformed {
-                d.mean.iter_mut().for_each(&mut nudge);
-                d.rotation.iter_mut().for_each(&mut nudge);
-                d.scale.iter_mut().for_each(&mut nudge);
-            }
+        let mut nudged = reference.clone();
+        let mut nudge = |v: &mut f32| *v *= 1.0 + rng.random_range(-PERTURBATION..PERTURBATION);
+        for d in &mut nudged {
+            d.mean.iter_mut().for_each(&mut nudge);
+            d.rotation.iter_mut().for_each(&mut nudge);
+            d.scale.iter_mut().for_each(&mut nudge);
         }
-        // backward_parameters takes the SH direction from the Deformed components.
-        let nudged = world.resource::<SplatBuffers>().deformed.clone();
+        // Both backward systems read the Deformed components.
         set_deformed(&mut world, &nudged);
         world
             .run_system_once::<_, bevy_ecs::error::Result, _>(backward_splats)
@@ -346,10 +345,6 @@ fn run_cpu(
                 *n = n.max(deviation);
             }
         }
-        world
-            .resource_mut::<SplatBuffers>()
-            .deformed
-            .clone_from(&reference);
         set_deformed(&mut world, &reference);
     }
     // The same for the projection: the splats of nudged deformed Gaussians, where both are
@@ -405,6 +400,7 @@ fn run_cpu(
         .unwrap()
         .unwrap();
     out.buffers = world.remove_resource::<SplatBuffers>().unwrap();
+    out.deformed = reference;
     (world, out)
 }
 
@@ -611,7 +607,7 @@ fn gpu_deform_project_and_gradients_equal_cpu_systems() {
 
         let b = &cpu.buffers;
         for i in 0..n {
-            let (g, c) = (&deformed[i], &b.deformed[i]);
+            let (g, c) = (&deformed[i], &cpu.deformed[i]);
             errors.check(&context, "deformed mean", i, &g.mean, &c.mean, 0.0);
             errors.check(
                 &context,
@@ -643,7 +639,7 @@ fn gpu_deform_project_and_gradients_equal_cpu_systems() {
             assert_eq!(
                 g.visible, c.visible,
                 "{context}: Gaussian {i} visibility: GPU {g:?} vs CPU {c:?} (deformed {:?})",
-                b.deformed[i]
+                cpu.deformed[i]
             );
             if c.visible {
                 visible_total += 1;
@@ -673,7 +669,7 @@ fn gpu_deform_project_and_gradients_equal_cpu_systems() {
                 assert_eq!(*g, Splat::default(), "{context}: Gaussian {i}");
                 let depth = camera
                     .world_to_camera
-                    .transform_point3(Vec3::from(b.deformed[i].mean))
+                    .transform_point3(Vec3::from(cpu.deformed[i].mean))
                     .z;
                 if depth < case.near_plane.max(0.01) && depth > -0.05 {
                     culled_near += 1;

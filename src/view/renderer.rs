@@ -10,7 +10,7 @@ use std::time::Instant;
 use bevy_ecs::prelude::{Entity, With, World};
 use serde::{Deserialize, Serialize};
 
-use crate::components::Position;
+use crate::components::{Deformed, Position};
 use crate::data::{Camera, frame_time};
 use crate::gpu::GpuError;
 use crate::io::camera_path::CameraSpec;
@@ -227,17 +227,19 @@ impl Renderer {
         };
         self.schedule.run(&mut self.world);
         let render_seconds = start.elapsed().as_secs_f64();
-        let buffers = self.world.resource::<SplatBuffers>();
-        let counted = buffers.deformed.len() == self.total && self.total > 0;
+        // Counted where the CPU splatting stage drew every Gaussian (the GPU backend leaves
+        // the deformed components and the splats unwritten).
+        let counted =
+            self.world.resource::<SplatBuffers>().splats.len() == self.total && self.total > 0;
         let alive = counted.then(|| {
-            buffers
-                .deformed
-                .iter()
+            self.world
+                .query::<&Deformed>()
+                .iter(&self.world)
                 .filter(|d| drawable(d.opacity))
                 .count()
         });
-        let drawn = (counted && buffers.splats.len() == self.total)
-            .then(|| buffers.splats.iter().filter(|s| s.visible).count());
+        let buffers = self.world.resource::<SplatBuffers>();
+        let drawn = counted.then(|| buffers.splats.iter().filter(|s| s.visible).count());
         RenderedFrame {
             image: buffers.render.image.clone(),
             time,
