@@ -24,7 +24,9 @@ use crate::model::sh::rgb_to_sh_dc;
 use crate::raster::PairCounts;
 use crate::resources::{LossImage, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::scene::{BackendKind, DataSource, SceneConfig};
-use crate::systems::{adam, backward, deform, loss, render_schedule, resident, sample_view, splat};
+use crate::systems::{
+    adam, backward, deform, guard, loss, render_schedule, resident, sample_view, splat,
+};
 use crate::systems::{time_warp, training_schedule};
 use crate::train::insert_resources;
 
@@ -376,6 +378,16 @@ fn loss_stage(world: &mut World) {
     world.run_system_cached(loss::loss).unwrap();
 }
 
+/// Runs the numeric guard's check of every parameter group's gradients.
+fn guard_stage(world: &mut World) {
+    macro_rules! check_every_group {
+        ($($group:ty,)*) => {
+            $(world.run_system_cached(guard::check_gradient::<$group>).unwrap();)*
+        };
+    }
+    each_param!(check_every_group);
+}
+
 /// The CPU stages of one iteration, each timed on its own, then the splatting stage's parts
 /// re-run on the buffers it just used.
 fn time_cpu_stages(
@@ -384,7 +396,7 @@ fn time_cpu_stages(
     catch_up: &mut Schedule,
     samples: &mut Samples,
 ) {
-    let stages: [Stage; 7] = [
+    let stages: [Stage; 8] = [
         ("sample view", sample),
         ("time warp", time_warp_stage),
         ("deform", |w| w.run_system_cached(deform::deform).unwrap()),
@@ -398,6 +410,7 @@ fn time_cpu_stages(
         ("backward (deformation)", |w| {
             w.run_system_cached(backward::backward_parameters).unwrap()
         }),
+        ("guard (finite gradients)", guard_stage),
     ];
     for (stage, f) in stages {
         if stage == "deform" && world.resource::<Settings>().train.deferred_adam {

@@ -4,6 +4,7 @@
 //! optimiser and densification stages do not run while it is set.
 
 use bevy_ecs::prelude::*;
+use rayon::prelude::*;
 
 use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
@@ -74,14 +75,23 @@ pub fn check_shared_motion(
     }
 }
 
-/// Whether no value is NaN or infinite: the largest magnitude's bits, as an integer maximum
-/// over the slice, stay below those of infinity.
+/// Whether no value is NaN or infinite: no magnitude's bits, as a signed integer, above those
+/// of the largest finite value. A comparison and an OR per value, which the baseline x86-64
+/// build vectorises too (it has no 32-bit integer maximum), over chunks of the slice in
+/// parallel (the guard reads every gradient each iteration).
 fn all_finite(values: &[f32]) -> bool {
-    const INFINITY_BITS: u32 = 0x7f80_0000;
-    let largest = values
-        .iter()
-        .fold(0u32, |largest, v| largest.max(v.to_bits() & 0x7fff_ffff));
-    largest < INFINITY_BITS
+    const LARGEST_FINITE_BITS: i32 = 0x7f7f_ffff;
+    const CHUNK: usize = 1 << 16;
+    let finite = |chunk: &[f32]| {
+        let beyond = chunk.iter().fold(0u32, |beyond, v| {
+            beyond | (((v.to_bits() & 0x7fff_ffff) as i32 > LARGEST_FINITE_BITS) as u32)
+        });
+        beyond == 0
+    };
+    if values.len() <= CHUNK {
+        return finite(values);
+    }
+    values.par_chunks(CHUNK).all(finite)
 }
 
 /// The systems of the guard, for ordering your own systems before or after it.
@@ -137,6 +147,22 @@ mod tests {
                 let mut values = finite.to_vec();
                 values.insert(at, bad);
                 assert!(!all_finite(&values), "{bad} at {at}");
+            }
+        }
+    }
+
+    /// A slice long enough to be checked in parallel chunks: one bad value is found in the
+    /// first, a middle or the last chunk, at a chunk's edges too.
+    #[test]
+    fn all_finite_finds_a_bad_value_in_any_chunk() {
+        let len = 5 * (1 << 16) + 123;
+        let mut values: Vec<f32> = (0..len).map(|i| (i as f32).sin() * 1e30).collect();
+        assert!(all_finite(&values));
+        for at in [0, (1 << 16) - 1, 1 << 16, 3 * (1 << 16) + 7, len - 1] {
+            for bad in [f32::NAN, f32::NEG_INFINITY] {
+                let kept = std::mem::replace(&mut values[at], bad);
+                assert!(!all_finite(&values), "{bad} at {at}");
+                values[at] = kept;
             }
         }
     }
