@@ -499,39 +499,45 @@ fn adam_values(
     bias: BiasCorrection,
     seed: u32,
 ) {
+    let rows = AdamRows {
+        values,
+        grads,
+        moments,
+        floats,
+        rates,
+        bias,
+        seed,
+    };
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2")]
-        fn avx2(
-            values: &mut [f32],
-            grads: &[f32],
-            moments: &mut [StoredMoments],
-            floats: usize,
-            rates: &[f32],
-            bias: BiasCorrection,
-            seed: u32,
-        ) {
-            adam_values_on(values, grads, moments, floats, rates, bias, seed)
+        fn avx2(rows: AdamRows) {
+            adam_values_on(rows)
         }
         if crate::raster::simd_level() >= crate::raster::SimdLevel::Avx2 {
             // SAFETY: the CPU supports AVX2 (checked at run time).
-            return unsafe { avx2(values, grads, moments, floats, rates, bias, seed) };
+            return unsafe { avx2(rows) };
         }
     }
-    adam_values_on(values, grads, moments, floats, rates, bias, seed)
+    adam_values_on(rows)
+}
+
+/// The arguments of [`adam_values`].
+struct AdamRows<'a> {
+    values: &'a mut [f32],
+    grads: &'a [f32],
+    moments: &'a mut [StoredMoments],
+    floats: usize,
+    rates: &'a [f32],
+    bias: BiasCorrection,
+    seed: u32,
 }
 
 /// [`adam_values`] for the instruction set of its caller.
 #[inline(always)]
-fn adam_values_on(
-    values: &mut [f32],
-    grads: &[f32],
-    moments: &mut [StoredMoments],
-    floats: usize,
-    rates: &[f32],
-    bias: BiasCorrection,
-    seed: u32,
-) {
+fn adam_values_on(rows: AdamRows) {
+    let (values, grads, moments) = (rows.values, rows.grads, rows.moments);
+    let (floats, rates, bias, seed) = (rows.floats, rows.rates, rows.bias, rows.seed);
     // The groups' widths as constants, each with a block of 8 Gaussians, so that the update
     // runs over whole blocks of values as vectors (the rates repeat with the block).
     macro_rules! fixed_widths {

@@ -319,13 +319,7 @@ fn run_cpu(
     let reference = deformed_by_slot(&mut world);
     out.noise = vec![[0.0; 7]; reference.len()];
     for _ in 0..NOISE_TRIALS {
-        let mut nudged = reference.clone();
-        let mut nudge = |v: &mut f32| *v *= 1.0 + rng.random_range(-PERTURBATION..PERTURBATION);
-        for d in &mut nudged {
-            d.mean.iter_mut().for_each(&mut nudge);
-            d.rotation.iter_mut().for_each(&mut nudge);
-            d.scale.iter_mut().for_each(&mut nudge);
-        }
+        let nudged = nudge_deformed(&reference, rng, false);
         // Both backward systems read the Deformed components.
         set_deformed(&mut world, &nudged);
         world
@@ -355,15 +349,8 @@ fn run_cpu(
     let eye = camera.center();
     let mut nudged_splats = Vec::new();
     for _ in 0..NOISE_TRIALS {
-        let mut nudged = reference.clone();
-        let mut nudge = |v: &mut f32| *v *= 1.0 + rng.random_range(-PERTURBATION..PERTURBATION);
-        for d in &mut nudged {
-            d.mean.iter_mut().for_each(&mut nudge);
-            d.rotation.iter_mut().for_each(&mut nudge);
-            d.scale.iter_mut().for_each(&mut nudge);
-            // The extent's ln(255·σ) is near 0 for σ near the 1/255 cut-off.
-            nudge(&mut d.opacity);
-        }
+        // The extent's ln(255·σ) is near 0 for σ near the 1/255 cut-off.
+        let nudged = nudge_deformed(&reference, rng, true);
         project_all(&nudged, &camera, case.near_plane, &mut nudged_splats);
         // The colour's view direction μ(t) − eye is short for Gaussians near the camera.
         for ((noise, d), (r, p)) in out
@@ -402,6 +389,22 @@ fn run_cpu(
     out.buffers = world.remove_resource::<SplatBuffers>().unwrap();
     out.deformed = reference;
     (world, out)
+}
+
+/// `reference` with every mean, rotation and scale value (and opacity, with `opacity`) scaled by
+/// a random factor within 1 ± PERTURBATION.
+fn nudge_deformed(reference: &[Deformed], rng: &mut impl Rng, opacity: bool) -> Vec<Deformed> {
+    let mut nudged = reference.to_vec();
+    let mut nudge = |v: &mut f32| *v *= 1.0 + rng.random_range(-PERTURBATION..PERTURBATION);
+    for d in &mut nudged {
+        d.mean.iter_mut().for_each(&mut nudge);
+        d.rotation.iter_mut().for_each(&mut nudge);
+        d.scale.iter_mut().for_each(&mut nudge);
+        if opacity {
+            nudge(&mut d.opacity);
+        }
+    }
+    nudged
 }
 
 /// Sets each Gaussian's Deformed component to `deformed[slot]`.
