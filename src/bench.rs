@@ -378,25 +378,16 @@ fn loss_stage(world: &mut World) {
     world.run_system_cached(loss::loss).unwrap();
 }
 
-/// Runs the numeric guard's check of every parameter group's gradients.
-fn guard_stage(world: &mut World) {
-    macro_rules! check_every_group {
-        ($($group:ty,)*) => {
-            $(world.run_system_cached(guard::check_gradient::<$group>).unwrap();)*
-        };
-    }
-    each_param!(check_every_group);
-}
-
 /// The CPU stages of one iteration, each timed on its own, then the splatting stage's parts
 /// re-run on the buffers it just used.
 fn time_cpu_stages(
     world: &mut World,
+    guard: &mut Schedule,
     adam_only: &mut Schedule,
     catch_up: &mut Schedule,
     samples: &mut Samples,
 ) {
-    let stages: [Stage; 8] = [
+    let stages: [Stage; 7] = [
         ("sample view", sample),
         ("time warp", time_warp_stage),
         ("deform", |w| w.run_system_cached(deform::deform).unwrap()),
@@ -410,7 +401,6 @@ fn time_cpu_stages(
         ("backward (deformation)", |w| {
             w.run_system_cached(backward::backward_parameters).unwrap()
         }),
-        ("guard (finite gradients)", guard_stage),
     ];
     for (stage, f) in stages {
         if stage == "deform" && world.resource::<Settings>().train.deferred_adam {
@@ -419,6 +409,7 @@ fn time_cpu_stages(
         }
         samples.stage(world, stage, f);
     }
+    samples.stage(world, "guard (finite gradients)", |w| guard.run(w));
     samples.stage(world, "adam", |w| adam_only.run(w));
     let camera = world.resource::<ViewSample>().camera;
     let (w, h) = (camera.width as usize, camera.height as usize);
@@ -504,6 +495,8 @@ pub fn time_world(mut world: World, label: &str, repeats: usize) -> Result<Bench
     let backend = world.resource::<Settings>().train.backend;
     let iteration = world.resource::<TrainState>().iteration;
     let mut train = training_schedule();
+    let mut guard_only = Schedule::default();
+    guard_only.add_systems(guard::check_gradients());
     let mut adam_only = Schedule::default();
     adam_only.add_systems(adam::adam_systems());
     let mut catch_up = Schedule::default();
@@ -515,9 +508,13 @@ pub fn time_world(mut world: World, label: &str, repeats: usize) -> Result<Bench
     let mut samples = Samples::default();
     for _ in 0..repeats {
         match backend {
-            BackendKind::Cpu => {
-                time_cpu_stages(&mut world, &mut adam_only, &mut catch_up, &mut samples)
-            }
+            BackendKind::Cpu => time_cpu_stages(
+                &mut world,
+                &mut guard_only,
+                &mut adam_only,
+                &mut catch_up,
+                &mut samples,
+            ),
             BackendKind::Gpu => time_gpu_stages(&mut world, &mut samples)?,
         }
     }

@@ -480,85 +480,48 @@ pub fn deferring(settings: Res<Settings>) -> bool {
     settings.train.deferred_adam
 }
 
-/// Adam on consecutive Gaussians of one group: `values`, `grads` and `moments` hold `floats`
-/// values per Gaussian (the moments as stored pairs); the first `rates.len()` values of each
-/// Gaussian are stepped, each with its learning rate, and their moments stored rounded with
-/// `seed`'s bits.
-///
-/// Compiled for AVX2 as well, and run so where the CPU has it (the level the rasterizer uses,
-/// [`crate::raster::simd_level`]): the baseline x86-64 target has half as many lanes and no
-/// 32-bit vector multiplication for the rounding's hash (at 1 M Gaussians Adam took 44–50 ms
-/// without it, 27–30 with it). The arithmetic is the same (nothing is contracted into fused
-/// multiply-adds), so both give the same results bit for bit.
-fn adam_values(
-    values: &mut [f32],
-    grads: &[f32],
-    moments: &mut [StoredMoments],
-    floats: usize,
-    rates: &[f32],
-    bias: BiasCorrection,
-    seed: u32,
-) {
-    let rows = AdamRows {
-        values,
-        grads,
-        moments,
-        floats,
-        rates,
-        bias,
-        seed,
-    };
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx2")]
-        fn avx2(rows: AdamRows) {
-            adam_values_on(rows)
+crate::raster::simd_kernel! {
+    /// Adam on consecutive Gaussians of one group: `values`, `grads` and `moments` hold
+    /// `floats` values per Gaussian (the moments as stored pairs); the first `rates.len()`
+    /// values of each Gaussian are stepped, each with its learning rate, and their moments
+    /// stored rounded with `seed`'s bits.
+    ///
+    /// Compiled for AVX2 and AVX-512 as well, and run at the level the rasterizer's loops use
+    /// ([`crate::raster::simd_level`]): the baseline x86-64 target has four lanes and no 32-bit
+    /// vector multiplication for the rounding's hash (at 1 M Gaussians Adam took 44–50 ms
+    /// without it, 27–30 with AVX2). The arithmetic is the same at every level (nothing is
+    /// contracted into fused multiply-adds), so all give the same results bit for bit.
+    fn adam_values(
+        values: &mut [f32],
+        grads: &[f32],
+        moments: &mut [StoredMoments],
+        floats: usize,
+        rates: &[f32],
+        bias: BiasCorrection,
+        seed: u32,
+    ) {
+        // The groups' widths as constants, each with a block of 8 Gaussians, so that the update
+        // runs over whole blocks of values as vectors (the rates repeat with the block).
+        macro_rules! fixed_widths {
+            ($($width:literal $block:literal)*) => {
+                match (floats, rates.len()) {
+                    $(($width, $width) => {
+                        return adam_fixed::<$width, $block>(values, grads, moments, rates, bias, seed)
+                    })*
+                    _ => {}
+                }
+            };
         }
-        if crate::raster::simd_level() >= crate::raster::SimdLevel::Avx2 {
-            // SAFETY: the CPU supports AVX2 (checked at run time).
-            return unsafe { avx2(rows) };
-        }
-    }
-    adam_values_on(rows)
-}
-
-/// The arguments of [`adam_values`].
-struct AdamRows<'a> {
-    values: &'a mut [f32],
-    grads: &'a [f32],
-    moments: &'a mut [StoredMoments],
-    floats: usize,
-    rates: &'a [f32],
-    bias: BiasCorrection,
-    seed: u32,
-}
-
-/// [`adam_values`] for the instruction set of its caller.
-#[inline(always)]
-fn adam_values_on(rows: AdamRows) {
-    let (values, grads, moments) = (rows.values, rows.grads, rows.moments);
-    let (floats, rates, bias, seed) = (rows.floats, rows.rates, rows.bias, rows.seed);
-    // The groups' widths as constants, each with a block of 8 Gaussians, so that the update
-    // runs over whole blocks of values as vectors (the rates repeat with the block).
-    macro_rules! fixed_widths {
-        ($($width:literal $block:literal)*) => {
-            match (floats, rates.len()) {
-                $(($width, $width) => {
-                    return adam_fixed::<$width, $block>(values, grads, moments, rates, bias, seed)
-                })*
-                _ => {}
+        fixed_widths!(1 8 3 24 6 48 8 64 16 128 28 224 45 360);
+        // Any other width, or a group whose last values are not stepped.
+        let gaussians = values
+            .chunks_exact_mut(floats)
+            .zip(grads.chunks_exact(floats))
+            .zip(moments.chunks_exact_mut(floats));
+        for ((x, g), mv) in gaussians {
+            for (((x, g), mv), lr) in x.iter_mut().zip(g).zip(mv).zip(rates) {
+                adam_update_stored(x, *g, mv, *lr, bias, seed);
             }
-        };
-    }
-    fixed_widths!(1 8 3 24 6 48 8 64 16 128 28 224 45 360);
-    // Any other width, or a group whose last values are not stepped.
-    let gaussians = values
-        .chunks_exact_mut(floats)
-        .zip(grads.chunks_exact(floats))
-        .zip(moments.chunks_exact_mut(floats));
-    for ((x, g), mv) in gaussians {
-        for (((x, g), mv), lr) in x.iter_mut().zip(g).zip(mv).zip(rates) {
-            adam_update_stored(x, *g, mv, *lr, bias, seed);
         }
     }
 }
