@@ -210,6 +210,8 @@ pub struct BenchReport {
     pub stages: Vec<StageTime>,
     /// Bytes per Gaussian of its ECS components (parameters, gradients, Adam moments, state).
     pub component_bytes: usize,
+    /// Whether the Gaussians hold gradient components (not under `train.fused_adam`).
+    pub gradient_components: bool,
     /// Heap bytes per Gaussian of the per-iteration scratch buffers after warm-up.
     pub scratch_bytes: f64,
     /// Device time per kernel of the GPU stages, with [`profile`] on (else empty).
@@ -402,15 +404,26 @@ fn time_cpu_stages(
             w.run_system_cached(backward::backward_parameters).unwrap()
         }),
     ];
+    let fused = world.resource::<Settings>().train.fuses_adam();
     for (stage, f) in stages {
+        if fused && stage == "backward (deformation)" {
+            // Part of the fused Adam pass, timed below.
+            continue;
+        }
         if stage == "deform" && world.resource::<Settings>().train.deferred_adam {
             // Deferred Adam's catch-up of the Gaussians the view can draw runs before them.
             samples.stage(world, "adam: catch-up before drawing", |w| catch_up.run(w));
         }
         samples.stage(world, stage, f);
     }
-    samples.stage(world, "guard (finite gradients)", |w| guard.run(w));
-    samples.stage(world, "adam", |w| adam_only.run(w));
+    if fused {
+        samples.stage(world, "adam (fused: deformation backward + guard)", |w| {
+            adam_only.run(w)
+        });
+    } else {
+        samples.stage(world, "guard (finite gradients)", |w| guard.run(w));
+        samples.stage(world, "adam", |w| adam_only.run(w));
+    }
     let camera = world.resource::<ViewSample>().camera;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let train = &world.resource::<Settings>().train;
@@ -546,6 +559,8 @@ pub fn time_world(mut world: World, label: &str, repeats: usize) -> Result<Bench
     let sh_degree = world.resource::<TrainState>().sh_degree;
     let scratch = scratch_bytes(world.resource::<SplatBuffers>());
     let kernels = samples.kernel_means(repeats);
+    let settings = world.resource::<Settings>();
+    let gradient_components = !settings.train.fuses_adam();
     Ok(BenchReport {
         label: label.to_string(),
         iteration,
@@ -559,7 +574,8 @@ pub fn time_world(mut world: World, label: &str, repeats: usize) -> Result<Bench
         intersections,
         pairs,
         stages: samples.medians(),
-        component_bytes: gaussian_bytes(world.resource::<Settings>().model.sh_degree),
+        component_bytes: gaussian_bytes(settings.model.sh_degree, gradient_components),
+        gradient_components,
         scratch_bytes: scratch as f64 / gaussians.max(1) as f64,
         kernels,
     })
@@ -602,9 +618,14 @@ impl BenchReport {
             out += &self.pair_lines(pairs);
         }
         out += &format!(
-            "memory per Gaussian: {} B of components (parameters, gradients, Adam moments), \
-             {:.0} B of per-iteration buffers, {:.0} B in all\n",
+            "memory per Gaussian: {} B of components ({}), {:.0} B of per-iteration buffers, \
+             {:.0} B in all\n",
             self.component_bytes,
+            if self.gradient_components {
+                "parameters, gradients, Adam moments"
+            } else {
+                "parameters and Adam moments; `train.fused_adam` keeps no gradients"
+            },
             self.scratch_bytes,
             self.component_bytes as f64 + self.scratch_bytes
         );

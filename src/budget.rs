@@ -37,10 +37,11 @@ pub const TILES_PER_GAUSSIAN: usize = 4;
 /// Allowance for growable arrays (doubling capacity), ECS tables and the allocator.
 pub const HEADROOM: f64 = 1.25;
 
-/// Bytes one Gaussian of a model of SH degree `sh_degree` costs while training.
-pub fn bytes_per_gaussian(sh_degree: u32) -> usize {
+/// Bytes one Gaussian of a model of SH degree `sh_degree` costs while training, with or
+/// without its gradient components (`train.fused_adam` does without them).
+pub fn bytes_per_gaussian(sh_degree: u32, gradients: bool) -> usize {
     // ECS storage: the components plus the entity id in its table and its location record.
-    let ecs = gaussian_bytes(sh_degree) + 8 + 16;
+    let ecs = gaussian_bytes(sh_degree, gradients) + 8 + 16;
     // Splatting arrays indexed by slot: splat, packed splat, gradients and the backward's
     // second half-sum of them, NDC gradient norm, tile rectangle, entry offset, depth key and
     // its radix-sort buffer, and depth-ordered binning record.
@@ -119,8 +120,10 @@ impl MemoryEstimate {
                     0
                 },
             pixel_buffers: (width as u64) * (height as u64) * BYTES_PER_PIXEL as u64,
-            per_gaussian: (bytes_per_gaussian(scene.model.sh_degree) as f64 * HEADROOM).ceil()
-                as u64,
+            per_gaussian: (bytes_per_gaussian(scene.model.sh_degree, !scene.train.fuses_adam())
+                as f64
+                * HEADROOM)
+                .ceil() as u64,
             initial_gaussians: (anchors * scene.init.points_per_anchor) as u64,
             max_gaussians: scene.densify.max_gaussians as u64,
         }
@@ -269,24 +272,25 @@ mod tests {
     /// The per-Gaussian cost counts at least the parameters, gradients (4 bytes per value
     /// each) and both Adam moments (2 bytes per value each, bfloat16) of every parameter
     /// component: 12 bytes for each of 97 values with every SH band, of 52 at SH degree 0 (the
-    /// higher bands are not stored).
+    /// higher bands are not stored); without gradient components 4 bytes per value less.
     #[test]
     fn per_gaussian_bytes_cover_the_optimiser_state() {
-        let optimised = |values: usize| values * (4 + 4 + 2 + 2);
-        assert!(
-            bytes_per_gaussian(3) >= optimised(97),
-            "{}",
-            bytes_per_gaussian(3)
-        );
-        assert!(
-            bytes_per_gaussian(0) >= optimised(52),
-            "{}",
-            bytes_per_gaussian(0)
-        );
-        assert_eq!(
-            bytes_per_gaussian(3) - bytes_per_gaussian(0),
-            optimised(45),
-            "the higher bands: 45 values, each with its gradient and two moments"
-        );
+        for (gradients, per_value) in [(true, 4 + 4 + 2 + 2), (false, 4 + 2 + 2)] {
+            let optimised = |values: usize| values * per_value;
+            let bytes = |sh_degree| bytes_per_gaussian(sh_degree, gradients);
+            assert!(bytes(3) >= optimised(97), "{}", bytes(3));
+            assert!(bytes(0) >= optimised(52), "{}", bytes(0));
+            assert_eq!(
+                bytes(3) - bytes(0),
+                optimised(45),
+                "the higher bands: 45 values, each with its two moments (and gradient: \
+                 {gradients})"
+            );
+            assert_eq!(
+                bytes_per_gaussian(3, true) - bytes_per_gaussian(3, false),
+                4 * 97,
+                "a gradient per value"
+            );
+        }
     }
 }

@@ -435,6 +435,15 @@ macro_rules! declare_params {
         /// with its [`GaussianBundle`] when the model uses them.
         pub type OptionalBundle = ($(($optional, Grad<$optional>, Adam<$optional>),)*);
 
+        /// [`OptionalBundle`] without the gradients (`train.fused_adam`).
+        pub type OptionalMoments = ($(($optional, Adam<$optional>),)*);
+
+        /// Drops the gradient components of an [`OptionalBundle`].
+        fn optional_without_gradients(bundle: OptionalBundle) -> OptionalMoments {
+            let ($($ofield,)*) = bundle;
+            ($(($ofield.0, $ofield.2),)*)
+        }
+
         /// The parameter components of one Gaussian, as a read-only query.
         pub type ParamRefs<'a> = ($(&'a $required,)* $(Option<&'a $optional>,)*);
 
@@ -571,18 +580,32 @@ impl GaussianParams {
     }
 }
 
-/// Heap bytes of the components of one Gaussian of a model of SH degree `sh_degree`.
-pub fn gaussian_bytes(sh_degree: u32) -> usize {
+/// Heap bytes of the components of one Gaussian of a model of SH degree `sh_degree`, with
+/// or without its gradient components (`train.fused_adam` does without them).
+pub fn gaussian_bytes(sh_degree: u32, gradients: bool) -> usize {
     let rest = if sh_degree > 0 {
         std::mem::size_of::<OptionalBundle>()
     } else {
         0
     };
-    std::mem::size_of::<GaussianBundle>() + rest
+    let all = std::mem::size_of::<GaussianBundle>() + rest;
+    if gradients {
+        return all;
+    }
+    let optional_gradients = if sh_degree > 0 {
+        std::mem::size_of::<OptionalBundle>() - std::mem::size_of::<OptionalMoments>()
+    } else {
+        0
+    };
+    all - (std::mem::size_of::<OptimizerState>() - std::mem::size_of::<AdamMoments>())
+        - optional_gradients
 }
 
 /// Spawns Gaussians, with their optional groups (the higher SH bands) only when `sh_degree`
-/// (the model's highest degree) is above 0.
+/// (the model's highest degree) is above 0, and without their gradient components when the
+/// world's [`Settings`](crate::resources::Settings) fuse Adam
+/// ([`crate::scene::TrainConfig::fuses_adam`]; the bundles' gradient components are then
+/// dropped).
 pub fn spawn_gaussians(
     world: &mut World,
     sh_degree: u32,
@@ -605,11 +628,42 @@ pub fn spawn_gaussians_with<E: Bundle<Effect: NoBundleEffect>>(
     gaussians: impl IntoIterator<Item = (GaussianBundle, OptionalBundle, E)>,
 ) {
     let gaussians = gaussians.into_iter();
-    if sh_degree > 0 {
-        world.spawn_batch(gaussians);
-    } else {
-        world.spawn_batch(gaussians.map(|(bundle, _, extra)| (bundle, extra)));
+    let gradients = !world
+        .get_resource::<crate::resources::Settings>()
+        .is_some_and(|s| s.train.fuses_adam());
+    match (sh_degree > 0, gradients) {
+        (true, true) => {
+            world.spawn_batch(gaussians);
+        }
+        (false, true) => {
+            world.spawn_batch(gaussians.map(|(bundle, _, extra)| (bundle, extra)));
+        }
+        (true, false) => {
+            world.spawn_batch(gaussians.map(|(bundle, optional, extra)| {
+                (
+                    without_gradients(bundle),
+                    optional_without_gradients(optional),
+                    extra,
+                )
+            }));
+        }
+        (false, false) => {
+            world.spawn_batch(
+                gaussians.map(|(bundle, _, extra)| (without_gradients(bundle), extra)),
+            );
+        }
     }
+}
+
+/// A Gaussian's components without its gradient components.
+fn without_gradients(
+    (params, (_, moments), others): GaussianBundle,
+) -> (
+    RequiredParams,
+    AdamMoments,
+    (GradAccum, WarpedTime, Deformed, SplatSlot, AdamClock),
+) {
+    (params, moments, others)
 }
 
 /// Every component of one Gaussian but the optional groups ([`OptionalBundle`]).

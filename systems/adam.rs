@@ -210,77 +210,125 @@ pub fn adam_step<P: ParamGroup>(
     mut deferred: Local<DeferredSums>,
     mut params: Query<GroupState<P>>,
 ) {
-    let iteration = state.iteration;
-    let rates = rates_at::<P>(&settings, iteration);
-    let rates = &rates.values()[..P::active_values(state.sh_degree)];
-    let bias = BiasCorrection::after(iteration.max(1) as i32);
-    // Without the splatting stage's buffers (a world that only optimises), every Gaussian
-    // counts as seen.
-    let train = &settings.train;
-    let defer = train.deferred_adam && P::DEFERRED;
-    let reached = buffers
-        .as_deref()
-        .filter(|_| train.visible_adam || defer)
-        .map(|b| b.gradient_reached.as_slice());
-    let deferred = match reached {
-        Some(_) if defer => {
-            sums_through::<P>(&mut deferred, &settings, iteration);
-            Some((&*deferred, catches_up(&settings, iteration)))
-        }
-        _ => None,
-    };
-    let seed = moment_seed(iteration, DENSE_STEP);
+    let step = GroupStep::<P>::new(&settings, &state, buffers.as_deref(), &mut deferred);
     params
         .contiguous_par_iter_mut()
         .expect("parameter components are stored in tables, so the query is dense")
         .for_each(|(mut values, grads, mut moments, slots, clocks)| {
-            let values: &mut [f32] = bytemuck::cast_slice_mut(&mut values[..]);
-            let grads: &[f32] = bytemuck::cast_slice(grads);
-            let moments: &mut [StoredMoments] = bytemuck::cast_slice_mut(&mut moments[..]);
-            let (Some(reached), Some(slots)) = (reached, slots) else {
-                adam_values(values, grads, moments, P::FLOATS, rates, bias, seed);
-                return;
-            };
-            let floats = P::FLOATS;
-            let mut coefficients = [0.0; MAX_GROUP_FLOATS];
-            let coefficients = &mut coefficients[..rates.len()];
-            let all_catch_up = deferred.is_some_and(|(_, all)| all);
-            let mut step_row =
-                |values: &mut [f32], moments: &mut [StoredMoments], i: usize, seen: bool| {
-                    let x = &mut values[i * floats..(i + 1) * floats];
-                    let mv = &mut moments[i * floats..(i + 1) * floats];
-                    if let Some((sums, _)) = deferred {
-                        // A Gaussian drawn this iteration was brought up to date before
-                        // (`catch_up_drawable`), so `last` is the previous iteration.
-                        let last = clocks.map_or(0, |c| c[i].0);
-                        let through = if seen { iteration - 1 } else { iteration };
-                        catch_up(x, mv, sums, last, through, coefficients);
-                    }
-                    if seen {
-                        let g = &grads[i * floats..(i + 1) * floats];
-                        adam_values(x, g, mv, floats, rates, bias, seed);
-                    }
-                };
-            // The Gaussians a view reaches lie scattered over the table: their rows are
-            // prefetched a few seen rows ahead of the one being stepped, which otherwise
-            // waits on a cache miss per row.
-            let mut ahead = RowsAhead::default();
-            for (i, slot) in slots.iter().enumerate() {
-                let seen = reached.get(slot.0 as usize).is_some_and(|&r| r);
-                if !seen && !all_catch_up {
-                    continue;
-                }
-                prefetch(&values[i * floats..(i + 1) * floats]);
-                prefetch(&grads[i * floats..(i + 1) * floats]);
-                prefetch(&moments[i * floats..(i + 1) * floats]);
-                if let Some((row, seen)) = ahead.push(i, seen) {
-                    step_row(values, moments, row, seen);
-                }
+            step.rows(&mut values, grads, &mut moments, slots, clocks);
+        });
+}
+
+/// This iteration's Adam step of group `P`, as [`adam_step`] (and the fused pass,
+/// [`crate::systems::fused`]) applies it to runs of consecutive Gaussians.
+pub(crate) struct GroupStep<'a, P: ParamGroup> {
+    iteration: u32,
+    rates: P,
+    active: usize,
+    bias: BiasCorrection,
+    seed: u32,
+    /// Which slots received a gradient, when only those are stepped (visible or deferred
+    /// Adam).
+    reached: Option<&'a [bool]>,
+    /// With deferred Adam: the sums of the dense steps since the last catch-up, and whether
+    /// this iteration brings every Gaussian up to date.
+    deferred: Option<(&'a DeferredSums, bool)>,
+}
+
+impl<'a, P: ParamGroup> GroupStep<'a, P> {
+    /// The step of `state.iteration`; `sums` is the caller's own record of deferred steps for
+    /// this group (brought up to date here when deferring). Without the splatting stage's
+    /// `buffers` (a world that only optimises), every Gaussian counts as seen.
+    pub(crate) fn new(
+        settings: &Settings,
+        state: &TrainState,
+        buffers: Option<&'a SplatBuffers>,
+        sums: &'a mut DeferredSums,
+    ) -> Self {
+        let iteration = state.iteration;
+        let train = &settings.train;
+        let defer = train.deferred_adam && P::DEFERRED;
+        let reached = buffers
+            .filter(|_| train.visible_adam || defer)
+            .map(|b| b.gradient_reached.as_slice());
+        let deferred = match reached {
+            Some(_) if defer => {
+                sums_through::<P>(sums, settings, iteration);
+                Some((&*sums, catches_up(settings, iteration)))
             }
-            while let Some((row, seen)) = ahead.pop() {
+            _ => None,
+        };
+        Self {
+            iteration,
+            rates: rates_at::<P>(settings, iteration),
+            active: P::active_values(state.sh_degree),
+            bias: BiasCorrection::after(iteration.max(1) as i32),
+            seed: moment_seed(iteration, DENSE_STEP),
+            reached,
+            deferred,
+        }
+    }
+
+    /// Steps consecutive Gaussians of one table: their values, gradients and moments, and
+    /// their slots and clocks where they have them.
+    pub(crate) fn rows(
+        &self,
+        values: &mut [P],
+        grads: &[Grad<P>],
+        moments: &mut [Adam<P>],
+        slots: Option<&[SplatSlot]>,
+        clocks: Option<&[AdamClock]>,
+    ) {
+        let (iteration, bias, seed) = (self.iteration, self.bias, self.seed);
+        let rates = &self.rates.values()[..self.active];
+        let values: &mut [f32] = bytemuck::cast_slice_mut(values);
+        let grads: &[f32] = bytemuck::cast_slice(grads);
+        let moments: &mut [StoredMoments] = bytemuck::cast_slice_mut(moments);
+        let (Some(reached), Some(slots)) = (self.reached, slots) else {
+            adam_values(values, grads, moments, P::FLOATS, rates, bias, seed);
+            return;
+        };
+        let floats = P::FLOATS;
+        let mut coefficients = [0.0; MAX_GROUP_FLOATS];
+        let coefficients = &mut coefficients[..rates.len()];
+        let deferred = self.deferred;
+        let all_catch_up = deferred.is_some_and(|(_, all)| all);
+        let mut step_row =
+            |values: &mut [f32], moments: &mut [StoredMoments], i: usize, seen: bool| {
+                let x = &mut values[i * floats..(i + 1) * floats];
+                let mv = &mut moments[i * floats..(i + 1) * floats];
+                if let Some((sums, _)) = deferred {
+                    // A Gaussian drawn this iteration was brought up to date before
+                    // (`catch_up_drawable`), so `last` is the previous iteration.
+                    let last = clocks.map_or(0, |c| c[i].0);
+                    let through = if seen { iteration - 1 } else { iteration };
+                    catch_up(x, mv, sums, last, through, coefficients);
+                }
+                if seen {
+                    let g = &grads[i * floats..(i + 1) * floats];
+                    adam_values(x, g, mv, floats, rates, bias, seed);
+                }
+            };
+        // The Gaussians a view reaches lie scattered over the table: their rows are
+        // prefetched a few seen rows ahead of the one being stepped, which otherwise
+        // waits on a cache miss per row.
+        let mut ahead = RowsAhead::default();
+        for (i, slot) in slots.iter().enumerate() {
+            let seen = reached.get(slot.0 as usize).is_some_and(|&r| r);
+            if !seen && !all_catch_up {
+                continue;
+            }
+            prefetch(&values[i * floats..(i + 1) * floats]);
+            prefetch(&grads[i * floats..(i + 1) * floats]);
+            prefetch(&moments[i * floats..(i + 1) * floats]);
+            if let Some((row, seen)) = ahead.push(i, seen) {
                 step_row(values, moments, row, seen);
             }
-        });
+        }
+        while let Some((row, seen)) = ahead.pop() {
+            step_row(values, moments, row, seen);
+        }
+    }
 }
 
 /// The learning rates of group `P` at `iteration`.
@@ -634,8 +682,10 @@ pub fn adam_shared_motion(
     }
 }
 
-/// The Adam systems of every parameter group ([`crate::components::param_groups!`]), and with
-/// shared motion ([`SharedMotion`]) those of the Gaussians' weights and of the bases.
+/// The Adam systems of every parameter group ([`crate::components::param_groups!`]), the
+/// fused pass for Gaussians without gradient components ([`crate::systems::fused`]), and with
+/// shared motion ([`SharedMotion`]) the Adam systems of the Gaussians' weights and of the
+/// bases.
 pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
     macro_rules! adam_steps {
         ($($group:ty,)*) => {
@@ -644,6 +694,7 @@ pub fn adam_systems() -> ScheduleConfigs<ScheduleSystem> {
     }
     (
         each_param!(adam_steps),
+        crate::systems::fused::backward_and_step,
         (adam_step::<MotionWeights>, adam_shared_motion)
             .chain()
             .run_if(resource_exists::<SharedMotion>),

@@ -129,12 +129,8 @@ pub type ParamGrads<'a> = (
     Option<&'a mut Grad<ColorRest>>,
 );
 
-/// Chains each deformed Gaussian's gradient through the deformation model to its parameters.
-///
-/// Most Gaussians of a real capture get no gradient from a view (not drawn, or only behind
-/// opaque pixels): their gradients are zeroed in one pass over the table, and the few that
-/// get one, scattered over it, are worked on a few rows behind the scan, which prefetches
-/// their rows ([`RowsAhead`]).
+/// Chains each deformed Gaussian's gradient through the deformation model to its parameters
+/// ([`ChainRule::rows`]), into its `Grad` components.
 pub fn backward_parameters(
     settings: Res<Settings>,
     state: Res<TrainState>,
@@ -142,16 +138,7 @@ pub fn backward_parameters(
     buffers: Res<SplatBuffers>,
     mut gaussians: Query<(DeformInputs, &Deformed, &SplatSlot, ParamGrads)>,
 ) {
-    let chain = ChainRule {
-        motion: settings.motion_basis(),
-        opacity_model: settings.opacity,
-        scale_motion: settings.model.scale_motion,
-        learn_centres: settings.train.lr.temporal_center > 0.0,
-        warp: settings.warp,
-        sh_degree: state.sh_degree,
-        eye: sample.camera.center(),
-        time: sample.time,
-    };
+    let chain = ChainRule::for_view(&settings, &state, &sample);
     let deformed_grads = &buffers.deformed_grads;
     gaussians
         .contiguous_par_iter_mut()
@@ -178,37 +165,38 @@ pub fn backward_parameters(
                 color: &mut g_color[..],
                 rest: g_rest.as_mut().map(|g| &mut g[..]),
             };
-            let mut ahead = RowsAhead::<DeformedGrad>::default();
-            for (i, slot) in slots.iter().enumerate() {
-                let d = deformed_grads[slot.0 as usize];
-                if d == DeformedGrad::default() {
-                    out.zero(i);
-                    continue;
-                }
-                prefetch_parameters(params, i);
-                prefetch(&deformed[i..=i]);
-                prefetch(&warped[i..=i]);
-                out.prefetch(i);
-                if let Some((row, d)) = ahead.push(i, d) {
-                    chain.row(params, warped, windows, deformed, row, d, &mut out);
-                }
-            }
-            while let Some((row, d)) = ahead.pop() {
-                chain.row(params, warped, windows, deformed, row, d, &mut out);
-            }
+            let rows = ChainRows {
+                params,
+                warped,
+                windows,
+                deformed,
+                slots,
+            };
+            chain.rows(rows, deformed_grads, &mut out);
         });
 }
 
-/// The gradient columns of one table chunk, as [`backward_parameters`] writes them.
-struct RowGrads<'a> {
-    position: &'a mut [Grad<Position>],
-    fourier: &'a mut [Grad<Fourier>],
-    temporal: &'a mut [Grad<Temporal>],
-    opacity: &'a mut [Grad<Opacity>],
-    rotation: &'a mut [Grad<Rotation>],
-    scale: &'a mut [Grad<Scale>],
-    color: &'a mut [Grad<Color>],
-    rest: Option<&'a mut [Grad<ColorRest>]>,
+/// The inputs of the chain rule for consecutive Gaussians of one table.
+#[derive(Clone, Copy)]
+pub(crate) struct ChainRows<'a> {
+    pub params: ParamColumns<'a>,
+    pub warped: &'a [WarpedTime],
+    pub windows: Option<&'a [TimeWindow]>,
+    pub deformed: &'a [Deformed],
+    pub slots: &'a [SplatSlot],
+}
+
+/// The gradient columns of one table chunk, as [`backward_parameters`] writes them (or a
+/// block's gradients, which the fused pass keeps on the stack).
+pub(crate) struct RowGrads<'a> {
+    pub position: &'a mut [Grad<Position>],
+    pub fourier: &'a mut [Grad<Fourier>],
+    pub temporal: &'a mut [Grad<Temporal>],
+    pub opacity: &'a mut [Grad<Opacity>],
+    pub rotation: &'a mut [Grad<Rotation>],
+    pub scale: &'a mut [Grad<Scale>],
+    pub color: &'a mut [Grad<Color>],
+    pub rest: Option<&'a mut [Grad<ColorRest>]>,
 }
 
 impl RowGrads<'_> {
@@ -241,7 +229,7 @@ impl RowGrads<'_> {
 }
 
 /// What the chain rule of [`backward_parameters`] needs besides each Gaussian's own data.
-struct ChainRule {
+pub(crate) struct ChainRule {
     motion: MotionBasis,
     opacity_model: TemporalOpacity,
     scale_motion: bool,
@@ -253,7 +241,7 @@ struct ChainRule {
 }
 
 /// One table chunk's parameter columns, as the contiguous query gives them.
-type ParamColumns<'a> = (
+pub(crate) type ParamColumns<'a> = (
     &'a [Position],
     &'a [Fourier],
     &'a [Temporal],
@@ -280,6 +268,60 @@ fn prefetch_parameters(params: ParamColumns, i: usize) {
 }
 
 impl ChainRule {
+    /// The chain rule for the view being trained on.
+    pub(crate) fn for_view(settings: &Settings, state: &TrainState, sample: &ViewSample) -> Self {
+        Self {
+            motion: settings.motion_basis(),
+            opacity_model: settings.opacity,
+            scale_motion: settings.model.scale_motion,
+            learn_centres: settings.train.lr.temporal_center > 0.0,
+            warp: settings.warp,
+            sh_degree: state.sh_degree,
+            eye: sample.camera.center(),
+            time: sample.time,
+        }
+    }
+
+    /// Chains the gradient of each row's deformed Gaussian (`deformed_grads`, by slot) into
+    /// that row of `out`; rows that got none get zero gradients.
+    ///
+    /// Most Gaussians of a real capture get no gradient from a view (not drawn, or only
+    /// behind opaque pixels): their gradients are zeroed in one pass, and the few that get
+    /// one, scattered over the table, are worked on a few rows behind the scan, which
+    /// prefetches their rows ([`RowsAhead`]).
+    pub(crate) fn rows(
+        &self,
+        rows: ChainRows,
+        deformed_grads: &[DeformedGrad],
+        out: &mut RowGrads,
+    ) {
+        let ChainRows {
+            params,
+            warped,
+            windows,
+            deformed,
+            slots,
+        } = rows;
+        let mut ahead = RowsAhead::<DeformedGrad>::default();
+        for (i, slot) in slots.iter().enumerate() {
+            let d = deformed_grads[slot.0 as usize];
+            if d == DeformedGrad::default() {
+                out.zero(i);
+                continue;
+            }
+            prefetch_parameters(params, i);
+            prefetch(&deformed[i..=i]);
+            prefetch(&warped[i..=i]);
+            out.prefetch(i);
+            if let Some((row, d)) = ahead.push(i, d) {
+                self.row(params, warped, windows, deformed, row, d, out);
+            }
+        }
+        while let Some((row, d)) = ahead.pop() {
+            self.row(params, warped, windows, deformed, row, d, out);
+        }
+    }
+
     /// Chains deformed-Gaussian gradient `d` of row `i` through the deformation model into
     /// that row of `out`.
     #[allow(clippy::too_many_arguments)]

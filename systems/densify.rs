@@ -463,13 +463,17 @@ pub fn densify_and_prune(
     state.last_densify = report;
 }
 
-/// Zeroes the gradients and Adam moments of every parameter group the Gaussian has.
+/// Zeroes the Adam moments of every parameter group the Gaussian has, and the gradients of
+/// those that have gradient components (`train.fused_adam` spawns Gaussians without them).
 fn reset_optimizer(mut gaussian: EntityCommands) {
     gaussian.queue(|mut entity: EntityWorldMut| {
         macro_rules! reset_every_group {
             ($($group:ty,)*) => {
                 $(if entity.contains::<$group>() {
-                    entity.insert((Grad::<$group>::default(), Adam::<$group>::default()));
+                    entity.insert(Adam::<$group>::default());
+                }
+                if entity.contains::<Grad<$group>>() {
+                    entity.insert(Grad::<$group>::default());
                 })*
             };
         }

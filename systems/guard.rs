@@ -79,7 +79,7 @@ pub fn check_shared_motion(
 /// of the largest finite value. A comparison and an OR per value, which the baseline x86-64
 /// build vectorises too (it has no 32-bit integer maximum), over chunks of the slice in
 /// parallel (the guard reads every gradient each iteration).
-fn all_finite(values: &[f32]) -> bool {
+pub(crate) fn all_finite(values: &[f32]) -> bool {
     const LARGEST_FINITE_BITS: i32 = 0x7f7f_ffff;
     const CHUNK: usize = 1 << 16;
     let finite = |chunk: &[f32]| {

@@ -20,6 +20,7 @@ pub mod backward;
 pub mod deform;
 pub mod densify;
 pub mod describe;
+pub mod fused;
 pub mod guard;
 pub mod loss;
 pub mod prefetch;

@@ -382,6 +382,16 @@ fn validate_names_each_bad_field() {
             c.train.deferred_adam = true;
             c.train.backend = tadgs::scene::BackendKind::Gpu;
         }),
+        // Fused Adam does without the gradient components that the regulariser and the
+        // shared motion read.
+        ("train.fused_adam", |c| {
+            c.train.fused_adam = true;
+            c.train.motion_smoothness.weight = 0.1;
+        }),
+        ("model.shared_motion", |c| {
+            c.train.fused_adam = true;
+            c.model.shared_motion = Some(tadgs::scene::SharedMotionConfig { bases: 3, knots: 4 });
+        }),
         // Two ways of skipping unseen Gaussians at once.
         ("train.deferred_adam", |c| {
             c.train.deferred_adam = true;

@@ -247,7 +247,8 @@ fn nonzero<T: PartialEq + Default>(field: &str, v: T) -> Check {
 /// `tow.window_frames > 0`, `tow.rho` in (0, 1); `model.shared_motion` with `bases` in 1..=16,
 /// `knots` in 2..=[`MAX_MOTION_KNOTS`] and the CPU backend; `train.lr.temporal_center` 0 with the GPU
 /// backend; `train.motion_smoothness.weight ≥ 0`, and above 0 only on the CPU backend with
-/// `neighbours` and `rebuild_interval` above 0;
+/// `neighbours` and `rebuild_interval` above 0; `train.fused_adam` without motion smoothness or
+/// shared motion;
 /// TAT `Paper` β ≥ 0, α > 0 and `Implementation` β in [0, 1], α > 0;
 /// `grad_threshold > 0`; `percent_dense > 0`; `interval > 0`; `from_iter ≤ until_iter`;
 /// `prune_opacity` in [0, 1); `vad_min_opacity` in [0, 1) if set; `max_gaussians ≥ 1`;
@@ -391,6 +392,15 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
                 .to_string(),
         );
     }
+    if t.fused_adam && smooth.weight > 0.0 {
+        return fail(
+            "train.fused_adam",
+            "is true, but the motion-smoothness regulariser adds to the gradient components a \
+             fused Adam does without: set `train.motion_smoothness.weight: 0` or `fused_adam: \
+             false`"
+                .to_string(),
+        );
+    }
     if lr.position_final > lr.position {
         return fail(
             "train.lr.position_final",
@@ -432,6 +442,14 @@ pub fn validate(config: &SceneConfig) -> Result<(), FieldError> {
                 "model.shared_motion",
                 "is set, but the shared motion bases run on the CPU backend only: use \
                  `train.backend: Cpu` or `shared_motion: None`",
+            );
+        }
+        if t.fused_adam {
+            return fail(
+                "model.shared_motion",
+                "is set, but the shared motion's gradient is read from the gradient components \
+                 that `train.fused_adam` does without: use `fused_adam: false` or \
+                 `shared_motion: None`",
             );
         }
     }

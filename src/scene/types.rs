@@ -648,6 +648,13 @@ pub struct TrainConfig {
     /// while skipping the work `visible_adam` skips. CPU backend only; not with
     /// `visible_adam`.
     pub deferred_adam: bool,
+    /// Chain each Gaussian's gradient through the deformation and step Adam on it in one pass,
+    /// block by block, instead of writing every gradient into `Grad` components and stepping
+    /// them in a later stage: the Gaussians then carry no gradient components (at SH degree 3,
+    /// 388 of their 1 260 bytes) and the gradients never travel through main memory. The
+    /// same model bit for bit, with dense, visible or deferred Adam. CPU backend only; not
+    /// with `motion_smoothness` or `model.shared_motion`, which read the gradient components.
+    pub fused_adam: bool,
     /// Motion-smoothness regulariser: neighbouring Gaussians move alike (off by default).
     pub motion_smoothness: MotionSmoothness,
     /// Learning rates per parameter group.
@@ -669,6 +676,12 @@ pub struct TrainConfig {
 }
 
 impl TrainConfig {
+    /// Whether the Gaussians go without gradient components and fused Adam steps them:
+    /// `fused_adam` on the CPU backend.
+    pub fn fuses_adam(&self) -> bool {
+        self.fused_adam && self.backend == BackendKind::Cpu
+    }
+
     /// The learning rates of iteration `iteration` (1-based): `lr`, with the time-dependent
     /// terms frozen during the static warm-up (`static_until`).
     pub fn rates_at(&self, iteration: u32) -> LearningRates {
@@ -697,6 +710,7 @@ impl Default for TrainConfig {
             camera_exposure: false,
             visible_adam: false,
             deferred_adam: false,
+            fused_adam: false,
             motion_smoothness: MotionSmoothness::default(),
             lr: LearningRates::default(),
             backend: BackendKind::Cpu,
