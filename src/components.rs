@@ -450,6 +450,15 @@ macro_rules! declare_params {
         /// Read-only query of every Adam component of a Gaussian.
         pub type AdamRefs<'a> = ($(&'a Adam<$required>,)* $(Option<&'a Adam<$optional>>,)*);
 
+        /// The parameter components of one Gaussian, as a writable query.
+        pub type ParamMuts<'a> = ($(&'a mut $required,)* $(Option<&'a mut $optional>,)*);
+
+        /// Writable query of every gradient component of a Gaussian.
+        pub type GradMuts<'a> = ($(&'a mut Grad<$required>,)* $(Option<&'a mut Grad<$optional>>,)*);
+
+        /// Writable query of every Adam component of a Gaussian.
+        pub type AdamMuts<'a> = ($(&'a mut Adam<$required>,)* $(Option<&'a mut Adam<$optional>>,)*);
+
         /// Zeroed gradients and Adam moments for every required group (for new Gaussians).
         pub fn fresh_optimizer_state() -> OptimizerState {
             Default::default()

@@ -118,16 +118,7 @@ pub fn backward_splats(
 }
 
 /// The gradient components written by the backward pass.
-pub type ParamGrads<'a> = (
-    &'a mut Grad<Position>,
-    &'a mut Grad<Fourier>,
-    &'a mut Grad<Temporal>,
-    &'a mut Grad<Opacity>,
-    &'a mut Grad<Rotation>,
-    &'a mut Grad<Scale>,
-    &'a mut Grad<Color>,
-    Option<&'a mut Grad<ColorRest>>,
-);
+pub type ParamGrads<'a> = crate::components::GradMuts<'a>;
 
 /// Chains each deformed Gaussian's gradient through the deformation model to its parameters
 /// ([`ChainRule::rows`]), into its `Grad` components.

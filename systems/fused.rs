@@ -15,8 +15,8 @@ use std::sync::Mutex;
 use bevy_ecs::prelude::*;
 
 use crate::components::{
-    Adam, AdamClock, Color, ColorRest, Deformed, Fourier, Grad, Opacity, Param, Position, Rotation,
-    Scale, SplatSlot, Temporal, TimeWindow, WarpedTime,
+    AdamClock, AdamMuts, Color, ColorRest, Deformed, Fourier, Grad, Opacity, Param, ParamMuts,
+    Position, Rotation, Scale, SplatSlot, Temporal, TimeWindow, WarpedTime,
 };
 use crate::model::adam::DeferredSums;
 use crate::resources::{Fault, NumericFault, Settings, SplatBuffers, TrainState, ViewSample};
@@ -27,30 +27,6 @@ use crate::systems::guard::all_finite;
 /// Rows chained and stepped together: their gradients (388 bytes a Gaussian at SH degree 3)
 /// stay in the first-level cache between the chain rule and the step.
 const BLOCK: usize = 64;
-
-/// The parameter components of one Gaussian, written by the step.
-type ParamsMut<'a> = (
-    &'a mut Position,
-    &'a mut Fourier,
-    &'a mut Temporal,
-    &'a mut Opacity,
-    &'a mut Rotation,
-    &'a mut Scale,
-    &'a mut Color,
-    Option<&'a mut ColorRest>,
-);
-
-/// The Adam moments of one Gaussian.
-type MomentsMut<'a> = (
-    &'a mut Adam<Position>,
-    &'a mut Adam<Fourier>,
-    &'a mut Adam<Temporal>,
-    &'a mut Adam<Opacity>,
-    &'a mut Adam<Rotation>,
-    &'a mut Adam<Scale>,
-    &'a mut Adam<Color>,
-    Option<&'a mut Adam<ColorRest>>,
-);
 
 /// What else the chain rule and the step read of a Gaussian.
 type RowInputs<'a> = (
@@ -156,7 +132,7 @@ pub fn backward_and_step(
     buffers: Res<SplatBuffers>,
     mut fault: ResMut<NumericFault>,
     mut sums: Local<[DeferredSums; 8]>,
-    mut gaussians: Query<(ParamsMut, MomentsMut, RowInputs), Without<Grad<Position>>>,
+    mut gaussians: Query<(ParamMuts, AdamMuts, RowInputs), Without<Grad<Position>>>,
 ) {
     if gaussians.is_empty() {
         return;

@@ -11,19 +11,6 @@ use tadgs::report::{StepRecord, TrainingLog};
 use tadgs::scene::{CloneTime, SceneConfig, SharedMotionConfig};
 use tadgs::train::Trainer;
 
-/// A 6-frame, 48×36 demo scene: 36 iterations, densification every 10 from 10 and an opacity
-/// reset at 30, SH degree raised every 8 iterations.
-fn tiny_scene() -> (SceneConfig, Arc<Dataset>) {
-    let (mut config, dataset) = tiny::tiny_demo(48, 36, 200);
-    config.train.iterations = 36;
-    config.train.sh_increase_interval = 8;
-    config.densify.from_iter = 5;
-    config.densify.interval = 10;
-    config.densify.grad_threshold = 2e-5;
-    config.densify.opacity_reset_interval = 30;
-    (config, dataset)
-}
-
 fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
     let state = trainer.state();
     log.steps.push(StepRecord {
@@ -44,15 +31,19 @@ fn log_of(trainer: &mut Trainer, log: &mut TrainingLog) {
 /// moments must survive the stop too, and with clones centred at their gradient's time, which
 /// reads the statistics' time offsets, and with hard views drawn twice per epoch, whose
 /// per-view losses must survive the stop, and with deferred Adam, whose Gaussians left behind
-/// at the stop must keep how far behind they are, and with shared motion bases, whose values
+/// at the stop must keep how far behind they are (also with fused Adam, whose Gaussians are
+/// restored without gradient components), and with shared motion bases, whose values
 /// and moments and the Gaussians' weights and their moments must survive the stop.
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
-    let (config, dataset) = tiny_scene();
+    let (config, dataset) = tiny::tiny_densifying_demo();
     check_resume(&config, &dataset, 17);
     let mut config = config;
     config.train.deferred_adam = true;
     check_resume(&config, &dataset, 17);
+    config.train.fused_adam = true;
+    check_resume(&config, &dataset, 17);
+    config.train.fused_adam = false;
     config.train.deferred_adam = false;
     config.train.camera_exposure = true;
     check_resume(&config, &dataset, 17);
@@ -179,7 +170,7 @@ fn check_resume(config: &SceneConfig, dataset: &Arc<Dataset>, stop: u32) {
 
 /// Trains `steps` iterations and saves a checkpoint into `dir`; returns the Gaussian count.
 fn saved_checkpoint(dir: &std::path::Path, steps: u32) -> usize {
-    let (config, dataset) = tiny_scene();
+    let (config, dataset) = tiny::tiny_densifying_demo();
     let mut trainer = Trainer::new(&config, dataset);
     for _ in 0..steps {
         trainer.step();

@@ -8,30 +8,13 @@
 mod rows;
 mod tiny;
 
-use std::sync::Arc;
-
 use bevy_ecs::prelude::*;
 use rows::in_entity_order;
 use tadgs::components::*;
-use tadgs::data::Dataset;
 use tadgs::resources::{NumericFault, SplatBuffers, TrainState};
-use tadgs::scene::SceneConfig;
 use tadgs::systems::backward::{backward_parameters, backward_splats};
 use tadgs::systems::training_schedule;
 use tadgs::train::{Trainer, insert_resources, spawn_initial_gaussians};
-
-/// A 6-frame, 48×36 demo scene: 36 iterations, densification every 10 from 5 and an opacity
-/// reset at 30, the SH degree raised every 8 iterations (to 3 at 24).
-fn tiny_scene() -> (SceneConfig, Arc<Dataset>) {
-    let (mut config, dataset) = tiny::tiny_demo(48, 36, 200);
-    config.train.iterations = 36;
-    config.train.sh_increase_interval = 8;
-    config.densify.from_iter = 5;
-    config.densify.interval = 10;
-    config.densify.grad_threshold = 2e-5;
-    config.densify.opacity_reset_interval = 30;
-    (config, dataset)
-}
 
 /// Every parameter group's values and Adam moments, in entity order, as bytes.
 fn optimised_state(world: &mut World) -> Vec<(&'static str, Vec<u8>)> {
@@ -72,7 +55,7 @@ fn with_gradients(world: &mut World) -> usize {
 /// opacity reset and SH degrees 0 to 3; the fused Gaussians never hold a gradient component.
 #[test]
 fn fused_adam_trains_the_same_model_bit_for_bit() {
-    let (config, dataset) = tiny_scene();
+    let (config, dataset) = tiny::tiny_densifying_demo();
     for mode in ["dense", "visible", "deferred"] {
         let mut config = config.clone();
         config.train.visible_adam = mode == "visible";
@@ -135,7 +118,7 @@ fn slot_7(world: &mut World) -> (Entity, Position, Scale, Rotation, Opacity, Col
 /// had after iteration 5, and no later iteration steps any Gaussian.
 #[test]
 fn a_nan_gradient_stops_fused_adam_as_it_stops_the_guard() {
-    let (config, dataset) = tiny_scene();
+    let (config, dataset) = tiny::tiny_densifying_demo();
     let mut faults = Vec::new();
     for fused in [false, true] {
         let mut config = config.clone();
