@@ -87,6 +87,45 @@ fn fused_adam_trains_the_same_model_bit_for_bit() {
     }
 }
 
+/// Property: training on from a merged segment model, whose Gaussians carry a
+/// [`TimeWindow`] (half of them fading out mid-sequence), gives the same parameters and
+/// moments bit for bit with and without fused Adam: the window scales dL/dσ alike in both.
+#[test]
+fn fused_adam_matches_on_a_model_with_time_windows() {
+    let (config, dataset) = tiny::tiny_densifying_demo();
+    let mut model = Trainer::new(&config, dataset.clone()).model();
+    let windows = (0..model.gaussians.len())
+        .map(|i| TimeWindow {
+            start: 0.0,
+            end: if i % 2 == 0 { 0.5 } else { 1.0 },
+            fade: 0.2,
+        })
+        .collect();
+    model.time_windows = Some(windows);
+    let mut trained = Vec::new();
+    for fused in [false, true] {
+        let mut config = config.clone();
+        config.train.fused_adam = fused;
+        let mut trainer = Trainer::from_model(&config, dataset.clone(), &model);
+        for _ in 0..12 {
+            trainer.step();
+        }
+        assert_eq!(trainer.fault(), None);
+        assert_eq!(
+            trainer
+                .world
+                .query::<&TimeWindow>()
+                .iter(&trainer.world)
+                .count(),
+            trainer.gaussian_count()
+        );
+        trained.push(optimised_state(&mut trainer.world));
+    }
+    for ((name, a), (_, b)) in trained[0].iter().zip(&trained[1]) {
+        assert!(a == b, "{name} differs");
+    }
+}
+
 /// Makes slot 7's deformed scale gradient NaN at iteration 6, before the chain rule through
 /// the deformation (as a numerical fault in the raster backward would).
 fn poison_at_iteration_6(state: Res<TrainState>, mut buffers: ResMut<SplatBuffers>) {
