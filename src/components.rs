@@ -592,22 +592,13 @@ impl GaussianParams {
 /// Heap bytes of the components of one Gaussian of a model of SH degree `sh_degree`, with
 /// or without its gradient components (`train.fused_adam` does without them).
 pub fn gaussian_bytes(sh_degree: u32, gradients: bool) -> usize {
-    let rest = if sh_degree > 0 {
-        std::mem::size_of::<OptionalBundle>()
-    } else {
-        0
-    };
-    let all = std::mem::size_of::<GaussianBundle>() + rest;
-    if gradients {
-        return all;
+    use std::mem::size_of;
+    match (sh_degree > 0, gradients) {
+        (true, true) => size_of::<GaussianBundle>() + size_of::<OptionalBundle>(),
+        (false, true) => size_of::<GaussianBundle>(),
+        (true, false) => size_of::<BundleWithoutGradients>() + size_of::<OptionalMoments>(),
+        (false, false) => size_of::<BundleWithoutGradients>(),
     }
-    let optional_gradients = if sh_degree > 0 {
-        std::mem::size_of::<OptionalBundle>() - std::mem::size_of::<OptionalMoments>()
-    } else {
-        0
-    };
-    all - (std::mem::size_of::<OptimizerState>() - std::mem::size_of::<AdamMoments>())
-        - optional_gradients
 }
 
 /// Spawns Gaussians, with their optional groups (the higher SH bands) only when `sh_degree`
@@ -665,19 +656,16 @@ pub fn spawn_gaussians_with<E: Bundle<Effect: NoBundleEffect>>(
 }
 
 /// A Gaussian's components without its gradient components.
-fn without_gradients(
-    (params, (_, moments), others): GaussianBundle,
-) -> (
-    RequiredParams,
-    AdamMoments,
-    (GradAccum, WarpedTime, Deformed, SplatSlot, AdamClock),
-) {
-    (params, moments, others)
+fn without_gradients((params, (_, moments), state): GaussianBundle) -> BundleWithoutGradients {
+    (params, moments, state)
 }
 
 /// Every component of one Gaussian but the optional groups ([`OptionalBundle`]).
-pub type GaussianBundle = (
-    RequiredParams,
-    OptimizerState,
-    (GradAccum, WarpedTime, Deformed, SplatSlot, AdamClock),
-);
+pub type GaussianBundle = (RequiredParams, OptimizerState, GaussianState);
+
+/// [`GaussianBundle`] without the gradient components (`train.fused_adam`).
+pub type BundleWithoutGradients = (RequiredParams, AdamMoments, GaussianState);
+
+/// A Gaussian's components besides its parameters and optimiser state: densification
+/// statistics, Adam clock and the stages' per-iteration results.
+pub type GaussianState = (GradAccum, WarpedTime, Deformed, SplatSlot, AdamClock);

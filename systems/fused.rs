@@ -22,7 +22,7 @@ use crate::model::adam::DeferredSums;
 use crate::resources::{Fault, NumericFault, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::systems::adam::GroupStep;
 use crate::systems::backward::{ChainRows, ChainRule, RowGrads};
-use crate::systems::guard::all_finite;
+use crate::systems::guard::first_non_finite_row;
 
 /// Rows chained and stepped together: their gradients (388 bytes a Gaussian at SH degree 3)
 /// stay in the first-level cache between the chain rule and the step.
@@ -81,14 +81,7 @@ impl BlockGrads {
     /// gradient, with its first such row.
     fn first_fault(&self, rows: usize, rest: bool) -> Option<(usize, &'static str, usize)> {
         fn bad<P: Param>(grads: &[Grad<P>]) -> Option<(usize, &'static str, usize)> {
-            let values: &[f32] = bytemuck::cast_slice(grads);
-            if all_finite(values) {
-                return None;
-            }
-            let row = values
-                .chunks_exact(P::FLOATS)
-                .position(|g| !all_finite(g))?;
-            Some((P::INDEX, P::NAME, row))
+            first_non_finite_row(grads).map(|row| (P::INDEX, P::NAME, row))
         }
         bad(&self.position[..rows])
             .or_else(|| bad(&self.fourier[..rows]))

@@ -42,12 +42,7 @@ pub fn check_gradient<P: Param>(
         .contiguous_iter()
         .expect("gradient components are stored in tables, so the query is dense");
     for column in columns {
-        let values: &[f32] = bytemuck::cast_slice(column);
-        if !all_finite(values) {
-            let row = values
-                .chunks_exact(P::FLOATS)
-                .position(|g| !all_finite(g))
-                .expect("a column with a bad value has a row with one");
+        if let Some(row) = first_non_finite_row(column) {
             fault.0 = Some(Fault {
                 iteration: state.iteration,
                 group: P::NAME,
@@ -75,11 +70,25 @@ pub fn check_shared_motion(
     }
 }
 
+/// The first of consecutive Gaussians' gradients of group `P` that holds a NaN or infinity:
+/// the whole slice is checked at once, and searched row by row only when it holds one.
+pub(crate) fn first_non_finite_row<P: Param>(grads: &[Grad<P>]) -> Option<usize> {
+    let values: &[f32] = bytemuck::cast_slice(grads);
+    if all_finite(values) {
+        return None;
+    }
+    let row = values
+        .chunks_exact(P::FLOATS)
+        .position(|g| !all_finite(g))
+        .expect("a slice with a bad value has a row with one");
+    Some(row)
+}
+
 /// Whether no value is NaN or infinite: no magnitude's bits, as a signed integer, above those
 /// of the largest finite value. A comparison and an OR per value, which the baseline x86-64
 /// build vectorises too (it has no 32-bit integer maximum), over chunks of the slice in
 /// parallel (the guard reads every gradient each iteration).
-pub(crate) fn all_finite(values: &[f32]) -> bool {
+fn all_finite(values: &[f32]) -> bool {
     const LARGEST_FINITE_BITS: i32 = 0x7f7f_ffff;
     const CHUNK: usize = 1 << 16;
     let finite = |chunk: &[f32]| {
