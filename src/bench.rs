@@ -25,7 +25,7 @@ use crate::raster::PairCounts;
 use crate::resources::{LossImage, Settings, SplatBuffers, TrainState, ViewSample};
 use crate::scene::{BackendKind, DataSource, SceneConfig};
 use crate::systems::{
-    adam, backward, deform, guard, loss, render_schedule, resident, sample_view, splat,
+    adam, backward, deform, densify, guard, loss, render_schedule, resident, sample_view, splat,
 };
 use crate::systems::{time_warp, training_schedule};
 use crate::train::insert_resources;
@@ -424,6 +424,9 @@ fn time_cpu_stages(
         samples.stage(world, "guard (finite gradients)", |w| guard.run(w));
         samples.stage(world, "adam", |w| adam_only.run(w));
     }
+    samples.stage(world, "densification statistics", |w| {
+        w.run_system_cached(densify::accumulate_stats).unwrap()
+    });
     let camera = world.resource::<ViewSample>().camera;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let train = &world.resource::<Settings>().train;

@@ -171,35 +171,44 @@ pub fn accumulate_stats(
     let count_faded = counts_faded_views(&settings.densify);
     let (warp, model) = (settings.warp, settings.opacity);
     let (camera, near_plane) = (&sample.camera, settings.train.near_plane);
+    // Whole table columns at a time (as the deformation does), and a Gaussian's deformed
+    // state read only once its splat says it may count: most are not drawn.
     gaussians
-        .par_iter_mut()
-        .for_each(|(slot, deformed, temporal, warped, mut accum)| {
-            let slot = slot.0 as usize;
-            let splat = &buffers.splats[slot];
-            if min_opacity.is_some_and(|m| deformed.opacity <= m) {
-                return;
-            }
-            let counted = splat.visible
-                || (count_faded
-                    && in_frustum(
+        .contiguous_par_iter_mut()
+        .expect("the statistics' components are stored in tables, so the query is dense")
+        .for_each(|(slots, deformed, temporal, warped, mut accums)| {
+            for (i, accum) in accums.iter_mut().enumerate() {
+                let slot = slots[i].0 as usize;
+                let splat = &buffers.splats[slot];
+                if !splat.visible && !count_faded {
+                    continue;
+                }
+                let deformed = &deformed[i];
+                if min_opacity.is_some_and(|m| deformed.opacity <= m) {
+                    continue;
+                }
+                let counted = splat.visible
+                    || in_frustum(
                         Vec3::from_array(deformed.mean),
                         deformed.rotation,
                         Vec3::from_array(deformed.scale),
                         camera,
                         near_plane,
-                    ));
-            if !counted {
-                return;
+                    );
+                if !counted {
+                    continue;
+                }
+                let temporal = &temporal[i];
+                let lifespan = lifespan_fraction(model, temporal.scale, temporal.center, &warp);
+                let sample = GradSample {
+                    grad_norm: buffers.ndc_grad_norm[slot],
+                    sigma: deformed.opacity,
+                    lifespan,
+                    offset: warped[i].dt,
+                };
+                accumulate(accum, sample, vad);
+                accum.max_radius = accum.max_radius.max(splat.extent.max_element());
             }
-            let lifespan = lifespan_fraction(model, temporal.scale, temporal.center, &warp);
-            let sample = GradSample {
-                grad_norm: buffers.ndc_grad_norm[slot],
-                sigma: deformed.opacity,
-                lifespan,
-                offset: warped.dt,
-            };
-            accumulate(&mut accum, sample, vad);
-            accum.max_radius = accum.max_radius.max(splat.extent.max_element());
         });
 }
 

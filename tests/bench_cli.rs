@@ -35,6 +35,7 @@ fn bench_prints_a_table_per_configuration() {
     ]);
     for stage in [
         "deform",
+        "densification statistics",
         "  blend",
         "  raster backward",
         "training iteration",
