@@ -50,18 +50,18 @@ fn backward(
         let count = batch_end - batch_start;
         workgroupBarrier();
         if li < count {
-            batch[li] = splats[sorted_splats[start + batch_start + li]];
+            stage(li, splats[sorted_splats[start + batch_start + li]], origin);
         }
         workgroupBarrier();
         for (var jj = 0u; jj < count; jj++) {
             let j = count - 1u - jj;
             let k = batch_start + j;
-            let s = batch[j];
             var g_mean = vec2<f32>(0.0);
             var g_conic = vec3<f32>(0.0);
             var g_opacity = 0.0;
             var g_color = vec3<f32>(0.0);
-            if k < contributor {
+            if k < contributor && in_box(j, lid.xy) {
+                let s = batch[j];
                 let f = falloff_at(s, origin, lid.xy);
                 if f.w != 0.0 {
                     let raw_alpha = s.color.w * f.z;

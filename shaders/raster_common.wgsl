@@ -26,6 +26,8 @@ struct Params {
 
 // A batch of a tile's splats, staged in workgroup memory by the blending kernels.
 var<workgroup> batch: array<Splat, TILE_PIXELS>;
+// Per staged splat, its screen box in tile-local pixels (see `stage`).
+var<workgroup> batch_box: array<u32, TILE_PIXELS>;
 var<workgroup> max_slot: atomic<u32>;
 var<workgroup> max_result: u32;
 
@@ -75,16 +77,38 @@ fn exp_falloff(x: f32) -> f32 {
     return bitcast<f32>(u32(i32(n) + 127) << 23u) * p;
 }
 
-// (dx, dy, G, drawn) of splat `s` at tile-local pixel `local` of the tile at `origin`: drawn is
-// 1 inside the splat's screen box where opacity·G ≥ 1/255, as in the reference's `falloff_at`.
-fn falloff_at(s: Splat, origin: vec2<u32>, local: vec2<u32>) -> vec4<f32> {
+// Stages splat `s` in slot `li` of the batch for the tile at `origin`, with its screen box in
+// tile-local pixels, worked out once per (tile, splat) rather than per pixel: [lo, hi] per
+// axis, clamped to [−1, 16] (which leaves every pixel's test as it was; a NaN bound becomes
+// the open end, as a NaN comparison let the pixel through), stored as the bytes lo.x + 1,
+// hi.x + 1, lo.y + 1, hi.y + 1. The pixel loops test the box (`in_box`) before they read the
+// splat: most of a tile's pixels are outside most of its splats' boxes, and reading a whole
+// splat from workgroup memory costs more than the test (on lavapipe the forward kernel took
+// a fifth less time).
+fn stage(li: u32, s: Splat, origin: vec2<u32>) {
+    batch[li] = s;
     let o = vec2<f32>(origin);
-    let l = vec2<f32>(local);
-    let lo = floor(s.mean - s.extent - 0.5 - o);
-    let hi = ceil(s.mean + s.extent - 0.5 - o);
-    if any(l < lo) || any(l > hi) {
-        return vec4<f32>(0.0);
-    }
+    let lo_f = floor(s.mean - s.extent - 0.5 - o);
+    let hi_f = ceil(s.mean + s.extent - 0.5 - o);
+    let lo = select(vec2<f32>(-1.0), clamp(lo_f, vec2<f32>(-1.0), vec2<f32>(16.0)), lo_f == lo_f);
+    let hi = select(vec2<f32>(16.0), clamp(hi_f, vec2<f32>(-1.0), vec2<f32>(16.0)), hi_f == hi_f);
+    let lo_u = vec2<u32>(lo + 1.0);
+    let hi_u = vec2<u32>(hi + 1.0);
+    batch_box[li] = lo_u.x | (hi_u.x << 8u) | (lo_u.y << 16u) | (hi_u.y << 24u);
+}
+
+// Whether tile-local pixel `local` lies in the screen box of the splat staged in slot `j`.
+fn in_box(j: u32, local: vec2<u32>) -> bool {
+    let b = batch_box[j];
+    let l = local + 1u;
+    return l.x >= (b & 0xffu) && l.x <= ((b >> 8u) & 0xffu)
+        && l.y >= ((b >> 16u) & 0xffu) && l.y <= (b >> 24u);
+}
+
+// (dx, dy, G, drawn) of splat `s` at tile-local pixel `local` of the tile at `origin`, a pixel
+// inside the splat's screen box (`in_box`): drawn is 1 where opacity·G ≥ 1/255, as in the
+// reference's `falloff_at`.
+fn falloff_at(s: Splat, origin: vec2<u32>, local: vec2<u32>) -> vec4<f32> {
     let d = vec2<f32>(origin + local) + 0.5 - s.mean;
     let pw = -0.5 * (s.conic.x * d.x * d.x + s.conic.z * d.y * d.y) - s.conic.y * d.x * d.y;
     if pw > 0.0 || pw < s.conic.w {

@@ -32,13 +32,16 @@ fn forward(
             break;
         }
         if base + li < end {
-            batch[li] = splats[sorted_splats[base + li]];
+            stage(li, splats[sorted_splats[base + li]], origin);
         }
         workgroupBarrier();
         let count = min(TILE_PIXELS, end - base);
         for (var j = 0u; j < count; j++) {
             if !open {
                 break;
+            }
+            if !in_box(j, lid.xy) {
+                continue;
             }
             let s = batch[j];
             let f = falloff_at(s, origin, lid.xy);
