@@ -24,6 +24,7 @@ fn backward(
     let at = tile_pixel(wg, lid);
     let origin = at.origin;
     let start = tile_offsets[at.tile];
+    let segment = segment_of(lid.xy);
 
     var transmittance = 0.0;
     var final_t = 0.0;
@@ -39,6 +40,8 @@ fn backward(
         contributor = contributors[p];
     }
     var batch_end = workgroup_max(li, contributor);
+    // Entries at or past this one add nothing to the pixels that visit together.
+    let visit_end = contributor_bound(contributor, batch_end);
 
     // Colour of everything behind the current entry, and the entry behind it.
     var accum = vec3<f32>(0.0);
@@ -53,46 +56,55 @@ fn backward(
             stage(li, splats[sorted_splats[start + batch_start + li]], origin);
         }
         workgroupBarrier();
-        for (var jj = 0u; jj < count; jj++) {
-            let j = count - 1u - jj;
-            let k = batch_start + j;
-            var g_mean = vec2<f32>(0.0);
-            var g_conic = vec3<f32>(0.0);
-            var g_opacity = 0.0;
-            var g_color = vec3<f32>(0.0);
-            if k < contributor && in_box(j, lid.xy) {
-                let s = batch[j];
-                let f = falloff_at(s, origin, lid.xy);
-                if f.w != 0.0 {
-                    let raw_alpha = s.color.w * f.z;
-                    let alpha = min(raw_alpha, ALPHA_MAX);
-                    // Transmittance in front of this splat.
-                    let t = transmittance / (1.0 - alpha);
-                    transmittance = t;
-                    accum = last_alpha * last_color + (1.0 - last_alpha) * accum;
-                    last_color = s.color.xyz;
-                    g_color = alpha * t * d_pixel;
-                    var d_alpha = dot(s.color.xyz - accum, d_pixel) * t;
-                    last_alpha = alpha;
-                    // The background is seen through every splat.
-                    d_alpha -= final_t / (1.0 - alpha) * bg_dot;
-                    if raw_alpha < ALPHA_MAX {
-                        g_opacity = f.z * d_alpha;
-                        let d_power = s.color.w * f.z * d_alpha;
-                        let dx = f.x;
-                        let dy = f.y;
-                        g_mean = d_power * vec2<f32>(
-                            s.conic.x * dx + s.conic.y * dy,
-                            s.conic.z * dy + s.conic.y * dx,
-                        );
-                        g_conic = -d_power * vec3<f32>(0.5 * dx * dx, dx * dy, 0.5 * dy * dy);
+        mark_segments(li, count);
+        workgroupBarrier();
+        for (var w = (count + 31u) / 32u; w > 0u; w--) {
+            let useful = slot_bits(w - 1u, min(count, max(visit_end, batch_start) - batch_start));
+            var bits = entry_candidates(segment_masks[segment + w - 1u], w - 1u, useful);
+            while bits != 0u {
+                let b = 31u - countLeadingZeros(bits);
+                bits ^= 1u << b;
+                let j = 32u * (w - 1u) + b;
+                let k = batch_start + j;
+                let box = staged_box(j, li);
+                var g_mean = vec2<f32>(0.0);
+                var g_conic = vec3<f32>(0.0);
+                var g_opacity = 0.0;
+                var g_color = vec3<f32>(0.0);
+                if k < contributor && in_box(box, lid.xy) {
+                    let s = staged_splat(j, li);
+                    let f = falloff_at(s, origin, lid.xy);
+                    if f.w != 0.0 {
+                        let raw_alpha = s.color.w * f.z;
+                        let alpha = min(raw_alpha, ALPHA_MAX);
+                        // Transmittance in front of this splat.
+                        let t = transmittance / (1.0 - alpha);
+                        transmittance = t;
+                        accum = last_alpha * last_color + (1.0 - last_alpha) * accum;
+                        last_color = s.color.xyz;
+                        g_color = alpha * t * d_pixel;
+                        var d_alpha = dot(s.color.xyz - accum, d_pixel) * t;
+                        last_alpha = alpha;
+                        // The background is seen through every splat.
+                        d_alpha -= final_t / (1.0 - alpha) * bg_dot;
+                        if raw_alpha < ALPHA_MAX {
+                            g_opacity = f.z * d_alpha;
+                            let d_power = s.color.w * f.z * d_alpha;
+                            let dx = f.x;
+                            let dy = f.y;
+                            g_mean = d_power * vec2<f32>(
+                                s.conic.x * dx + s.conic.y * dy,
+                                s.conic.z * dy + s.conic.y * dx,
+                            );
+                            g_conic = -d_power * vec3<f32>(0.5 * dx * dx, dx * dy, 0.5 * dy * dy);
+                        }
                     }
                 }
+                add_shares(li, start + k, array<f32, FIELDS>(
+                    g_mean.x, g_mean.y, g_conic.x, g_conic.y, g_conic.z, g_opacity,
+                    g_color.x, g_color.y, g_color.z,
+                ));
             }
-            add_shares(li, start + k, array<f32, FIELDS>(
-                g_mean.x, g_mean.y, g_conic.x, g_conic.y, g_conic.z, g_opacity,
-                g_color.x, g_color.y, g_color.z,
-            ));
         }
         batch_end = batch_start;
     }

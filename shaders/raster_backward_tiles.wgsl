@@ -3,6 +3,18 @@
 // memory, and each (tile, splat) entry gets one partial gradient; raster_reduce.wgsl then sums
 // each splat's entries. Deterministic.
 
+// The entries of word `word` of a batch that the workgroup visits: all those before the last
+// contributor of any of its pixels (`useful`) that can be drawn somewhere in the tile, the
+// same for every invocation, as the sums below need the whole workgroup at every entry.
+fn entry_candidates(own: u32, word: u32, useful: u32) -> u32 {
+    return workgroupUniformLoad(&tile_mask[word]) & useful;
+}
+
+// The bound on the entries worth visiting: the workgroup's, for the same reason.
+fn contributor_bound(contributor: u32, workgroup_bound: u32) -> u32 {
+    return workgroup_bound;
+}
+
 // Per sorted entry: the gradient fields.
 @group(0) @binding(7) var<storage, read_write> entry_grads: array<f32>;
 

@@ -28,6 +28,14 @@ struct Params {
 var<workgroup> batch: array<Splat, TILE_PIXELS>;
 // Per staged splat, its screen box in tile-local pixels (see `stage`).
 var<workgroup> batch_box: array<u32, TILE_PIXELS>;
+// Per staged splat, the segments of the tile its ellipse reaches (see `segments_reached`).
+var<workgroup> batch_reach: array<u32, TILE_PIXELS>;
+// Per segment of the tile (a half row of 8 pixels; 32 segments), which staged splats reach it:
+// bit b of word w stands for slot 32·w + b (see `mark_segments`).
+var<workgroup> segment_masks: array<u32, TILE_PIXELS>;
+const SEGMENT_WORDS: u32 = 8u; // TILE_PIXELS / 32
+// The same for the whole tile: which staged splats reach any of its segments.
+var<workgroup> tile_mask: array<u32, SEGMENT_WORDS>;
 var<workgroup> max_slot: atomic<u32>;
 var<workgroup> max_result: u32;
 
@@ -95,14 +103,90 @@ fn stage(li: u32, s: Splat, origin: vec2<u32>) {
     let lo_u = vec2<u32>(lo + 1.0);
     let hi_u = vec2<u32>(hi + 1.0);
     batch_box[li] = lo_u.x | (hi_u.x << 8u) | (lo_u.y << 16u) | (hi_u.y << 24u);
+    batch_reach[li] = segments_reached(s, o, lo, hi);
 }
 
-// Whether tile-local pixel `local` lies in the screen box of the splat staged in slot `j`.
-fn in_box(j: u32, local: vec2<u32>) -> bool {
-    let b = batch_box[j];
+// The segments of the tile (bit 2·row + column / 8) where the splat can be drawn: where its
+// box meets {power ≥ conic.w}, the ellipse outside which `falloff_at` draws nothing, found row
+// by row from the roots of the quadratic in dx. Conservative, so that visiting only these
+// segments draws what testing every pixel would: the discriminant is widened by far more than
+// rounding can move it, the span by a pixel each side, and a NaN falls back to the box.
+fn segments_reached(s: Splat, o: vec2<f32>, lo: vec2<f32>, hi: vec2<f32>) -> u32 {
+    let a = s.conic.x;
+    let b = s.conic.y;
+    let c = s.conic.z;
+    let w = s.conic.w;
+    // The tile-local column whose pixel centre lies at the mean.
+    let centre = s.mean.x - o.x - 0.5;
+    var bits = 0u;
+    for (var row = 0u; row < TILE; row++) {
+        let y = f32(row);
+        if y < lo.y || y > hi.y {
+            continue;
+        }
+        let dy = o.y + y + 0.5 - s.mean.y;
+        // power ≥ w  ⟺  0.5·a·dx² + b·dy·dx + 0.5·c·dy² + w ≤ 0.
+        let bb = b * b * dy * dy;
+        let ac = a * c * dy * dy;
+        let disc = bb - ac - 2.0 * a * w + 1e-3 * (bb + abs(ac) + abs(2.0 * a * w));
+        if disc < 0.0 {
+            continue;
+        }
+        let r = sqrt(disc);
+        var span_lo = floor(centre + (-b * dy - r) / a) - 1.0;
+        var span_hi = ceil(centre + (-b * dy + r) / a) + 1.0;
+        if !(a > 0.0) || disc != disc || span_lo != span_lo || span_hi != span_hi {
+            span_lo = -1.0;
+            span_hi = 16.0;
+        }
+        span_lo = max(span_lo, lo.x);
+        span_hi = min(span_hi, hi.x);
+        if span_lo <= span_hi {
+            bits |= select(0u, 1u << (2u * row), span_lo <= 7.0 && span_hi >= 0.0);
+            bits |= select(0u, 2u << (2u * row), span_lo <= 15.0 && span_hi >= 8.0);
+        }
+    }
+    return bits;
+}
+
+// Whether tile-local pixel `local` lies in a staged splat's packed screen box (`stage`).
+fn in_box(box: u32, local: vec2<u32>) -> bool {
     let l = local + 1u;
-    return l.x >= (b & 0xffu) && l.x <= ((b >> 8u) & 0xffu)
-        && l.y >= ((b >> 16u) & 0xffu) && l.y <= (b >> 24u);
+    return l.x >= (box & 0xffu) && l.x <= ((box >> 8u) & 0xffu)
+        && l.y >= ((box >> 16u) & 0xffu) && l.y <= (box >> 24u);
+}
+
+// Fills `segment_masks` and `tile_mask` for the `count` splats of the batch: call it between
+// the barrier that
+// follows the staging and another barrier. Invocation li builds word li % 8 of segment li / 8
+// from 32 splats' reach, so the pixel loops visit only the slots that can draw in their
+// segment instead of testing every slot at every pixel.
+fn mark_segments(li: u32, count: u32) {
+    let segment = li / SEGMENT_WORDS;
+    let first = (li % SEGMENT_WORDS) * 32u;
+    var bits = 0u;
+    for (var b = 0u; b < min(32u, max(count, first) - first); b++) {
+        bits |= ((batch_reach[first + b] >> segment) & 1u) << b;
+    }
+    segment_masks[li] = bits;
+    if li < SEGMENT_WORDS {
+        var reached = 0u;
+        for (var b = 0u; b < min(32u, max(count, 32u * li) - 32u * li); b++) {
+            reached |= select(0u, 1u << b, batch_reach[32u * li + b] != 0u);
+        }
+        tile_mask[li] = reached;
+    }
+}
+
+// Index in `segment_masks` of the first word of tile-local pixel `local`'s segment.
+fn segment_of(local: vec2<u32>) -> u32 {
+    return (local.y * 2u + local.x / 8u) * SEGMENT_WORDS;
+}
+
+// The bits of word `w` of a segment mask that stand for one of the first `n` slots.
+fn slot_bits(w: u32, n: u32) -> u32 {
+    let m = u32(clamp(i32(n) - i32(32u * w), 0, 32));
+    return select((1u << m) - 1u, 0xffffffffu, m == 32u);
 }
 
 // (dx, dy, G, drawn) of splat `s` at tile-local pixel `local` of the tile at `origin`, a pixel

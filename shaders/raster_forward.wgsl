@@ -1,5 +1,7 @@
 // Forward blending: one 16×16 workgroup per tile, one invocation per pixel; the tile's
-// depth-sorted splats are staged through workgroup memory 256 at a time.
+// depth-sorted splats are staged through workgroup memory 256 at a time, and each pixel visits
+// those whose box reaches its segment. Appended to raster_common.wgsl and one of
+// raster_lanes_plain.wgsl or raster_lanes_subgroup.wgsl.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> splats: array<Splat>;
@@ -25,6 +27,7 @@ fn forward(
     var last = 0u;
     let start = tile_offsets[at.tile];
     let end = tile_offsets[at.tile + 1u];
+    let segment = segment_of(lid.xy);
 
     for (var base = start; base < end; base += TILE_PIXELS) {
         // Stop once no pixel of the tile can take more colour.
@@ -36,27 +39,35 @@ fn forward(
         }
         workgroupBarrier();
         let count = min(TILE_PIXELS, end - base);
-        for (var j = 0u; j < count; j++) {
-            if !open {
+        mark_segments(li, count);
+        workgroupBarrier();
+        for (var w = 0u; w < (count + 31u) / 32u; w++) {
+            if !any_open(open) {
                 break;
             }
-            if !in_box(j, lid.xy) {
-                continue;
+            var bits = lane_candidates(segment_masks[segment + w]);
+            while bits != 0u {
+                let j = 32u * w + countTrailingZeros(bits);
+                bits &= bits - 1u;
+                let box = staged_box(j, li);
+                if !open || !in_box(box, lid.xy) {
+                    continue;
+                }
+                let s = staged_splat(j, li);
+                let f = falloff_at(s, origin, lid.xy);
+                if f.w == 0.0 {
+                    continue;
+                }
+                let alpha = min(s.color.w * f.z, ALPHA_MAX);
+                let next = transmittance * (1.0 - alpha);
+                if next < TRANSMITTANCE_MIN {
+                    open = false;
+                    continue;
+                }
+                color += s.color.xyz * (alpha * transmittance);
+                transmittance = next;
+                last = base - start + j + 1u;
             }
-            let s = batch[j];
-            let f = falloff_at(s, origin, lid.xy);
-            if f.w == 0.0 {
-                continue;
-            }
-            let alpha = min(s.color.w * f.z, ALPHA_MAX);
-            let next = transmittance * (1.0 - alpha);
-            if next < TRANSMITTANCE_MIN {
-                open = false;
-                break;
-            }
-            color += s.color.xyz * (alpha * transmittance);
-            transmittance = next;
-            last = base - start + j + 1u;
         }
     }
 

@@ -39,15 +39,23 @@ const MAX_GROUPS: u32 = 65_535;
 
 const FORWARD_WGSL: &str = concat!(
     include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_lanes_plain.wgsl"),
+    include_str!("../../shaders/raster_forward.wgsl")
+);
+const FORWARD_SUBGROUP_WGSL: &str = concat!(
+    include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_lanes_subgroup.wgsl"),
     include_str!("../../shaders/raster_forward.wgsl")
 );
 const BACKWARD_TILES_WGSL: &str = concat!(
     include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_lanes_plain.wgsl"),
     include_str!("../../shaders/raster_backward.wgsl"),
     include_str!("../../shaders/raster_backward_tiles.wgsl")
 );
 const BACKWARD_ATOMIC_WGSL: &str = concat!(
     include_str!("../../shaders/raster_common.wgsl"),
+    include_str!("../../shaders/raster_lanes_subgroup.wgsl"),
     include_str!("../../shaders/raster_backward.wgsl"),
     include_str!("../../shaders/raster_backward_atomic.wgsl")
 );
@@ -110,12 +118,18 @@ impl GpuRasterizer {
             let [pipeline] = super::kernel::pipelines(device, label, source, [entry]);
             pipeline
         };
-        let forward = pipeline("raster_forward", FORWARD_WGSL, "forward");
+        // The fast backward's features include SUBGROUP, which the forward uses too.
         let atomics = device.features().contains(FLOAT_ATOMIC_FEATURES);
-        let backward = if atomics {
-            pipeline("raster_backward_atomic", BACKWARD_ATOMIC_WGSL, "backward")
+        let (forward, backward) = if atomics {
+            (
+                pipeline("raster_forward", FORWARD_SUBGROUP_WGSL, "forward"),
+                pipeline("raster_backward_atomic", BACKWARD_ATOMIC_WGSL, "backward"),
+            )
         } else {
-            pipeline("raster_backward_tiles", BACKWARD_TILES_WGSL, "backward")
+            (
+                pipeline("raster_forward", FORWARD_WGSL, "forward"),
+                pipeline("raster_backward_tiles", BACKWARD_TILES_WGSL, "backward"),
+            )
         };
         let reduce = pipeline("raster_reduce", REDUCE_WGSL, "reduce");
         use wgpu::BufferUsages as U;
