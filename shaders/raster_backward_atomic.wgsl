@@ -5,7 +5,7 @@
 // the additions varies from run to run.
 
 // The entries of one word of a batch that a subgroup visits: those before the last contributor
-// of any of its pixels (`useful`) whose box reaches one of its pixels' segments; every other
+// of any of its pixels (`useful`) that can be drawn in one of its pixels' segments; every other
 // entry would add zeros.
 fn entry_candidates(own: u32, word: u32, useful: u32) -> u32 {
     return lane_candidates(own) & useful;

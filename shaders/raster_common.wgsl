@@ -157,23 +157,22 @@ fn in_box(box: u32, local: vec2<u32>) -> bool {
 }
 
 // Fills `segment_masks` and `tile_mask` for the `count` splats of the batch: call it between
-// the barrier that
-// follows the staging and another barrier. Invocation li builds word li % 8 of segment li / 8
-// from 32 splats' reach, so the pixel loops visit only the slots that can draw in their
-// segment instead of testing every slot at every pixel.
+// the barrier that follows the staging and another barrier. Invocation li builds word li % 8
+// of segment li / 8 from 32 splats' reach (the first 8 invocations, whose words cover every
+// slot once, also the tile's word), so the pixel loops visit only the slots that can draw in
+// their segment instead of testing every slot at every pixel.
 fn mark_segments(li: u32, count: u32) {
     let segment = li / SEGMENT_WORDS;
     let first = (li % SEGMENT_WORDS) * 32u;
     var bits = 0u;
+    var reached = 0u;
     for (var b = 0u; b < min(32u, max(count, first) - first); b++) {
-        bits |= ((batch_reach[first + b] >> segment) & 1u) << b;
+        let reach = batch_reach[first + b];
+        bits |= ((reach >> segment) & 1u) << b;
+        reached |= select(0u, 1u << b, reach != 0u);
     }
     segment_masks[li] = bits;
     if li < SEGMENT_WORDS {
-        var reached = 0u;
-        for (var b = 0u; b < min(32u, max(count, 32u * li) - 32u * li); b++) {
-            reached |= select(0u, 1u << b, batch_reach[32u * li + b] != 0u);
-        }
         tile_mask[li] = reached;
     }
 }

@@ -1,6 +1,6 @@
 // Forward blending: one 16×16 workgroup per tile, one invocation per pixel; the tile's
 // depth-sorted splats are staged through workgroup memory 256 at a time, and each pixel visits
-// those whose box reaches its segment. Appended to raster_common.wgsl and one of
+// those that can be drawn in its segment (`mark_segments`). Appended to raster_common.wgsl and one of
 // raster_lanes_plain.wgsl or raster_lanes_subgroup.wgsl.
 
 @group(0) @binding(0) var<uniform> params: Params;
