@@ -18,21 +18,23 @@ fn contributor_bound(contributor: u32, workgroup_bound: u32) -> u32 {
 // Per sorted entry: the gradient fields.
 @group(0) @binding(7) var<storage, read_write> entry_grads: array<f32>;
 
-var<workgroup> shares: array<f32, 2304>; // FIELDS × TILE_PIXELS
-var<workgroup> row_sums: array<f32, 144>; // FIELDS × TILE
+var<workgroup> shares: array<f32, FIELDS * BLEND_INVOCATIONS>;
+var<workgroup> row_sums: array<f32, FIELDS * INVOCATION_ROWS>;
 
-// Called by every invocation of the workgroup (it holds barriers). Two barriers per entry: a
-// tree over the 256 pixels would take eight, and a barrier, not an addition, is what costs.
-// Each of 144 invocations first adds one field along one pixel row of the tile, then nine
-// add up a field's 16 row sums, always in the same order.
+// Called by every invocation of the workgroup (it holds barriers), with the sum of its pixels'
+// shares. Two barriers per entry: a tree over the invocations would take several, and a
+// barrier, not an addition, is what costs. Each of FIELDS · INVOCATION_ROWS invocations first
+// adds one field along one row of invocations, then nine add up a field's row sums, always in
+// the same order.
 fn add_shares(li: u32, entry: u32, values: array<f32, FIELDS>) {
     var share = values; // a variable, so it can be indexed dynamically
     for (var field = 0u; field < FIELDS; field++) {
-        shares[field * TILE_PIXELS + li] = share[field];
+        shares[field * BLEND_INVOCATIONS + li] = share[field];
     }
     workgroupBarrier();
-    if li < FIELDS * TILE {
-        // Invocation li = field · 16 + row sums shares[field · 256 + row · 16 ..][..16].
+    if li < FIELDS * INVOCATION_ROWS {
+        // Invocation li = field · INVOCATION_ROWS + row sums
+        // shares[field · BLEND_INVOCATIONS + row · 16 ..][..16].
         let first = li * TILE;
         var sum = 0.0;
         for (var i = 0u; i < TILE; i++) {
@@ -46,8 +48,8 @@ fn add_shares(li: u32, entry: u32, values: array<f32, FIELDS>) {
     workgroupBarrier();
     if li < FIELDS {
         var sum = 0.0;
-        for (var row = 0u; row < TILE; row++) {
-            sum += row_sums[li * TILE + row];
+        for (var row = 0u; row < INVOCATION_ROWS; row++) {
+            sum += row_sums[li * INVOCATION_ROWS + row];
         }
         entry_grads[FIELDS * entry + li] = sum;
     }

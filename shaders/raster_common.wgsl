@@ -3,6 +3,16 @@
 
 const TILE: u32 = 16u;
 const TILE_PIXELS: u32 = 256u;
+// Blending workgroups have 16 × INVOCATION_ROWS invocations per 16×16 tile, each invocation
+// blending PIXEL_ROWS pixels of one column, rows PIXEL_ROWS·y + r: what an invocation reads of
+// a splat, and what its subgroup votes and sums, then serves several pixels (on lavapipe each
+// read of workgroup memory and each subgroup operation is a loop over the lanes, the main cost
+// of these kernels).
+const PIXEL_ROWS: u32 = 8u;
+const INVOCATION_ROWS: u32 = TILE / PIXEL_ROWS;
+const BLEND_INVOCATIONS: u32 = TILE * INVOCATION_ROWS;
+// Splats staged per batch, BATCH / BLEND_INVOCATIONS per invocation.
+const BATCH: u32 = 256u;
 const ALPHA_MIN: f32 = 0.003921569; // 1/255
 const ALPHA_MAX: f32 = 0.99;
 const TRANSMITTANCE_MIN: f32 = 1e-4;
@@ -25,38 +35,50 @@ struct Params {
 }
 
 // A batch of a tile's splats, staged in workgroup memory by the blending kernels.
-var<workgroup> batch: array<Splat, TILE_PIXELS>;
+var<workgroup> batch: array<Splat, BATCH>;
 // Per staged splat, its screen box in tile-local pixels (see `stage`).
-var<workgroup> batch_box: array<u32, TILE_PIXELS>;
+var<workgroup> batch_box: array<u32, BATCH>;
 // Per staged splat, the segments of the tile its ellipse reaches (see `segments_reached`).
-var<workgroup> batch_reach: array<u32, TILE_PIXELS>;
-// Per segment of the tile (a half row of 8 pixels; 32 segments), which staged splats reach it:
-// bit b of word w stands for slot 32·w + b (see `mark_segments`).
-var<workgroup> segment_masks: array<u32, TILE_PIXELS>;
-const SEGMENT_WORDS: u32 = 8u; // TILE_PIXELS / 32
+var<workgroup> batch_reach: array<u32, BATCH>;
+// Per segment of the tile (8 columns of PIXEL_ROWS rows: the pixels of 8 neighbouring
+// invocations; 2 · INVOCATION_ROWS segments), which staged splats reach it: bit b of word w
+// stands for slot 32·w + b (see `mark_segments`).
+var<workgroup> segment_masks: array<u32, BLEND_INVOCATIONS>;
+const SEGMENT_WORDS: u32 = 8u; // BATCH / 32
 // The same for the whole tile: which staged splats reach any of its segments.
 var<workgroup> tile_mask: array<u32, SEGMENT_WORDS>;
 var<workgroup> max_slot: atomic<u32>;
 var<workgroup> max_result: u32;
 
-// The pixel of one invocation of a 16×16 blending workgroup: one workgroup per tile.
-struct TilePixel {
-    tile: u32,
-    origin: vec2<u32>,
-    pixel: vec2<u32>,
-    // Inside the image (edge tiles overhang it).
-    inside: bool,
+// The tile of a blending workgroup (one workgroup per tile) and its origin in the image.
+fn tile_index(wg: vec3<u32>) -> u32 {
+    return wg.y * params.tiles_x + wg.x;
 }
 
-fn tile_pixel(wg: vec3<u32>, lid: vec3<u32>) -> TilePixel {
-    let origin = wg.xy * TILE;
-    let pixel = origin + lid.xy;
-    return TilePixel(
-        wg.y * params.tiles_x + wg.x,
-        origin,
-        pixel,
-        pixel.x < params.width && pixel.y < params.height,
-    );
+// Tile-local pixel `row` (0 ≤ row < PIXEL_ROWS) of invocation `lid` of a blending workgroup.
+fn local_pixel(lid: vec3<u32>, row: u32) -> vec2<u32> {
+    return vec2<u32>(lid.x, PIXEL_ROWS * lid.y + row);
+}
+
+// Whether tile-local pixel `local` of the tile at `origin` lies inside the image (edge tiles
+// overhang it).
+fn inside_image(origin: vec2<u32>, local: vec2<u32>) -> bool {
+    let pixel = origin + local;
+    return pixel.x < params.width && pixel.y < params.height;
+}
+
+// The index of tile-local pixel `local` in row-major image buffers.
+fn image_index(origin: vec2<u32>, local: vec2<u32>) -> u32 {
+    let pixel = origin + local;
+    return pixel.y * params.width + pixel.x;
+}
+
+// Stages the tile's sorted entries `first .. first + count` (count ≤ BATCH) in the batch,
+// several per invocation. Call it between barriers.
+fn stage_batch(li: u32, first: u32, count: u32, origin: vec2<u32>) {
+    for (var slot = li; slot < count; slot += BLEND_INVOCATIONS) {
+        stage(slot, splats[sorted_splats[first + slot]], origin);
+    }
 }
 
 // The largest `value` over the workgroup, as a workgroup-uniform value (so loops may depend on
@@ -85,7 +107,7 @@ fn exp_falloff(x: f32) -> f32 {
     return bitcast<f32>(u32(i32(n) + 127) << 23u) * p;
 }
 
-// Stages splat `s` in slot `li` of the batch for the tile at `origin`, with its screen box in
+// Stages splat `s` in slot `slot` of the batch for the tile at `origin`, with its screen box in
 // tile-local pixels, worked out once per (tile, splat) rather than per pixel: [lo, hi] per
 // axis, clamped to [−1, 16] (which leaves every pixel's test as it was; a NaN bound becomes
 // the open end, as a NaN comparison let the pixel through), stored as the bytes lo.x + 1,
@@ -93,8 +115,8 @@ fn exp_falloff(x: f32) -> f32 {
 // splat: most of a tile's pixels are outside most of its splats' boxes, and reading a whole
 // splat from workgroup memory costs more than the test (on lavapipe the forward kernel took
 // 28 % less time, the float-atomic backward 19 % less).
-fn stage(li: u32, s: Splat, origin: vec2<u32>) {
-    batch[li] = s;
+fn stage(slot: u32, s: Splat, origin: vec2<u32>) {
+    batch[slot] = s;
     let o = vec2<f32>(origin);
     let lo_f = floor(s.mean - s.extent - 0.5 - o);
     let hi_f = ceil(s.mean + s.extent - 0.5 - o);
@@ -102,13 +124,13 @@ fn stage(li: u32, s: Splat, origin: vec2<u32>) {
     let hi = select(vec2<f32>(16.0), clamp(hi_f, vec2<f32>(-1.0), vec2<f32>(16.0)), hi_f == hi_f);
     let lo_u = vec2<u32>(lo + 1.0);
     let hi_u = vec2<u32>(hi + 1.0);
-    batch_box[li] = lo_u.x | (hi_u.x << 8u) | (lo_u.y << 16u) | (hi_u.y << 24u);
-    batch_reach[li] = segments_reached(s, o, lo, hi);
+    batch_box[slot] = lo_u.x | (hi_u.x << 8u) | (lo_u.y << 16u) | (hi_u.y << 24u);
+    batch_reach[slot] = segments_reached(s, o, lo, hi);
 }
 
-// The segments of the tile (bit 2·row + column / 8) where the splat can be drawn: where its
-// box meets {power ≥ conic.w}, the ellipse outside which `falloff_at` draws nothing, found row
-// by row from the roots of the quadratic in dx. Conservative, so that visiting only these
+// The segments of the tile (bit 2·(row / PIXEL_ROWS) + column / 8) where the splat can be
+// drawn: where its box meets {power ≥ conic.w}, the ellipse outside which `falloff_at` draws
+// nothing, found row by row from the roots of the quadratic in dx. Conservative, so that visiting only these
 // segments draws what testing every pixel would: the discriminant is widened by far more than
 // rounding can move it, the span by a pixel each side, and a NaN falls back to the box.
 fn segments_reached(s: Splat, o: vec2<f32>, lo: vec2<f32>, hi: vec2<f32>) -> u32 {
@@ -142,8 +164,9 @@ fn segments_reached(s: Splat, o: vec2<f32>, lo: vec2<f32>, hi: vec2<f32>) -> u32
         span_lo = max(span_lo, lo.x);
         span_hi = min(span_hi, hi.x);
         if span_lo <= span_hi {
-            bits |= select(0u, 1u << (2u * row), span_lo <= 7.0 && span_hi >= 0.0);
-            bits |= select(0u, 2u << (2u * row), span_lo <= 15.0 && span_hi >= 8.0);
+            let first_bit = 2u * (row / PIXEL_ROWS);
+            bits |= select(0u, 1u << first_bit, span_lo <= 7.0 && span_hi >= 0.0);
+            bits |= select(0u, 2u << first_bit, span_lo <= 15.0 && span_hi >= 8.0);
         }
     }
     return bits;
@@ -177,9 +200,9 @@ fn mark_segments(li: u32, count: u32) {
     }
 }
 
-// Index in `segment_masks` of the first word of tile-local pixel `local`'s segment.
-fn segment_of(local: vec2<u32>) -> u32 {
-    return (local.y * 2u + local.x / 8u) * SEGMENT_WORDS;
+// Index in `segment_masks` of the first word of the segment of invocation `lid`'s pixels.
+fn segment_of(lid: vec3<u32>) -> u32 {
+    return (lid.y * 2u + lid.x / 8u) * SEGMENT_WORDS;
 }
 
 // The bits of word `w` of a segment mask that stand for one of the first `n` slots.

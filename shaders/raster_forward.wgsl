@@ -1,7 +1,7 @@
-// Forward blending: one 16×16 workgroup per tile, one invocation per pixel; the tile's
-// depth-sorted splats are staged through workgroup memory 256 at a time, and each pixel visits
-// those that can be drawn in its segment (`mark_segments`). Appended to raster_common.wgsl and one of
-// raster_lanes_plain.wgsl or raster_lanes_subgroup.wgsl.
+// Forward blending: one workgroup per tile, one invocation per PIXEL_ROWS pixels of a tile
+// column; the tile's depth-sorted splats are staged through workgroup memory 256 at a time, and
+// each invocation visits those that can be drawn in its segment (`mark_segments`). Appended to
+// raster_common.wgsl and one of raster_lanes_plain.wgsl or raster_lanes_subgroup.wgsl.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> splats: array<Splat>;
@@ -13,36 +13,88 @@
 // Per pixel: number of tile entries up to and including the last one blended.
 @group(0) @binding(6) var<storage, read_write> contributors: array<u32>;
 
-@compute @workgroup_size(16, 16)
+// What a pixel has blended so far.
+struct Blended {
+    transmittance: f32,
+    color: vec3<f32>,
+    // Number of tile entries up to and including the last one blended.
+    last: u32,
+    // Still taking colour: inside the image and not yet stopped.
+    open: bool,
+}
+
+// Blends staged splat `s`, tile entry number `entry` (counted from 1), into the pixel at
+// tile-local `local`, inside the splat's screen box.
+fn blend_into(
+    pixel: ptr<function, Blended>,
+    s: Splat,
+    origin: vec2<u32>,
+    local: vec2<u32>,
+    entry: u32,
+) {
+    let f = falloff_at(s, origin, local);
+    if f.w == 0.0 {
+        return;
+    }
+    let alpha = min(s.color.w * f.z, ALPHA_MAX);
+    let next = (*pixel).transmittance * (1.0 - alpha);
+    if next < TRANSMITTANCE_MIN {
+        (*pixel).open = false;
+        return;
+    }
+    (*pixel).color += s.color.xyz * (alpha * (*pixel).transmittance);
+    (*pixel).transmittance = next;
+    (*pixel).last = entry;
+}
+
+// Whether any of an invocation's pixels still takes colour.
+fn any_pixel_open(pixels: ptr<function, array<Blended, PIXEL_ROWS>>) -> bool {
+    var open = false;
+    for (var r = 0u; r < PIXEL_ROWS; r++) {
+        open |= (*pixels)[r].open;
+    }
+    return open;
+}
+
+// Writes a pixel's colour over the background, alpha, final transmittance and contributors.
+fn write_pixel(pixel: Blended, origin: vec2<u32>, local: vec2<u32>) {
+    if inside_image(origin, local) {
+        let p = image_index(origin, local);
+        let t = pixel.transmittance;
+        out_rgba[p] = vec4<f32>(pixel.color + t * params.background.xyz, 1.0 - t);
+        final_transmittance[p] = t;
+        contributors[p] = pixel.last;
+    }
+}
+
+@compute @workgroup_size(TILE, INVOCATION_ROWS)
 fn forward(
     @builtin(workgroup_id) wg: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
     @builtin(local_invocation_index) li: u32,
 ) {
-    let at = tile_pixel(wg, lid);
-    let origin = at.origin;
-    var open = at.inside;
-    var transmittance = 1.0;
-    var color = vec3<f32>(0.0);
-    var last = 0u;
-    let start = tile_offsets[at.tile];
-    let end = tile_offsets[at.tile + 1u];
-    let segment = segment_of(lid.xy);
+    let tile = tile_index(wg);
+    let origin = wg.xy * TILE;
+    var pixels: array<Blended, PIXEL_ROWS>;
+    for (var r = 0u; r < PIXEL_ROWS; r++) {
+        pixels[r] = Blended(1.0, vec3<f32>(0.0), 0u, inside_image(origin, local_pixel(lid, r)));
+    }
+    let start = tile_offsets[tile];
+    let end = tile_offsets[tile + 1u];
+    let segment = segment_of(lid);
 
-    for (var base = start; base < end; base += TILE_PIXELS) {
+    for (var base = start; base < end; base += BATCH) {
         // Stop once no pixel of the tile can take more colour.
-        if workgroup_max(li, u32(open)) == 0u {
+        if workgroup_max(li, u32(any_pixel_open(&pixels))) == 0u {
             break;
         }
-        if base + li < end {
-            stage(li, splats[sorted_splats[base + li]], origin);
-        }
+        let count = min(BATCH, end - base);
+        stage_batch(li, base, count, origin);
         workgroupBarrier();
-        let count = min(TILE_PIXELS, end - base);
         mark_segments(li, count);
         workgroupBarrier();
         for (var w = 0u; w < (count + 31u) / 32u; w++) {
-            if !any_open(open) {
+            if !any_open(any_pixel_open(&pixels)) {
                 break;
             }
             var bits = lane_candidates(segment_masks[segment + w]);
@@ -50,31 +102,30 @@ fn forward(
                 let j = 32u * w + countTrailingZeros(bits);
                 bits &= bits - 1u;
                 let box = staged_box(j, li);
-                if !open || !in_box(box, lid.xy) {
+                var in_splat = array<bool, PIXEL_ROWS>();
+                var any_in = false;
+                for (var r = 0u; r < PIXEL_ROWS; r++) {
+                    in_splat[r] = pixels[r].open && in_box(box, local_pixel(lid, r));
+                    any_in |= in_splat[r];
+                }
+                if !any_in {
                     continue;
                 }
                 let s = staged_splat(j, li);
-                let f = falloff_at(s, origin, lid.xy);
-                if f.w == 0.0 {
-                    continue;
+                let entry = base - start + j + 1u;
+                for (var r = 0u; r < PIXEL_ROWS; r++) {
+                    if in_splat[r] {
+                        // Through a whole variable: SPIR-V takes no pointer to an element.
+                        var pixel = pixels[r];
+                        blend_into(&pixel, s, origin, local_pixel(lid, r), entry);
+                        pixels[r] = pixel;
+                    }
                 }
-                let alpha = min(s.color.w * f.z, ALPHA_MAX);
-                let next = transmittance * (1.0 - alpha);
-                if next < TRANSMITTANCE_MIN {
-                    open = false;
-                    continue;
-                }
-                color += s.color.xyz * (alpha * transmittance);
-                transmittance = next;
-                last = base - start + j + 1u;
             }
         }
     }
 
-    if at.inside {
-        let p = at.pixel.y * params.width + at.pixel.x;
-        out_rgba[p] = vec4<f32>(color + transmittance * params.background.xyz, 1.0 - transmittance);
-        final_transmittance[p] = transmittance;
-        contributors[p] = last;
+    for (var r = 0u; r < PIXEL_ROWS; r++) {
+        write_pixel(pixels[r], origin, local_pixel(lid, r));
     }
 }

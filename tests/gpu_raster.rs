@@ -7,7 +7,7 @@ mod gpu;
 use glam::Vec2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use tadgs::gpu::GpuRasterizer;
+use tadgs::gpu::{GpuContext, GpuRasterizer};
 use tadgs::raster::{Rasterizer, RenderOutput, Splat, SplatGrad};
 
 /// Random splats over a `width × height` image: sizes from sub-pixel to a quarter of the
@@ -79,6 +79,20 @@ fn gpu_raster_default_equals_cpu_reference() {
         return;
     };
     assert_parity(&mut gpu);
+}
+
+/// Every layout of the blending kernels (pixels of a tile column per invocation: hardware GPUs
+/// take 1, software adapters 8) equals the CPU reference, with either backward.
+#[test]
+fn gpu_raster_every_pixel_layout_equals_cpu_reference() {
+    for float_atomics in [true, false] {
+        for rows in [1, 2, 4, 16] {
+            let Some(context) = gpu::open_or_skip(|| GpuContext::new(float_atomics)) else {
+                return;
+            };
+            assert_parity(&mut GpuRasterizer::with_pixel_rows(context, rows));
+        }
+    }
 }
 
 /// Forward: every pixel's colour and alpha equal the CPU's to 1e-4 relative (values are in

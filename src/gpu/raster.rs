@@ -60,6 +60,21 @@ const BACKWARD_ATOMIC_WGSL: &str = concat!(
     include_str!("../../shaders/raster_backward_atomic.wgsl")
 );
 const REDUCE_WGSL: &str = include_str!("../../shaders/raster_reduce.wgsl");
+/// The line of `shaders/raster_common.wgsl` that sets the blending kernels' pixels per
+/// invocation (see [`GpuRasterizer::with_pixel_rows`]).
+const PIXEL_ROWS_LINE: &str = "const PIXEL_ROWS: u32 = 8u;";
+
+/// `source` with its blending kernels set to `rows` pixels per invocation.
+fn with_rows(source: &str, rows: u32) -> String {
+    assert!(
+        source.contains(PIXEL_ROWS_LINE),
+        "raster_common.wgsl no longer sets PIXEL_ROWS as {PIXEL_ROWS_LINE:?}"
+    );
+    source.replace(
+        PIXEL_ROWS_LINE,
+        &format!("const PIXEL_ROWS: u32 = {rows}u;"),
+    )
+}
 
 /// GPU rasterizer state: device, pipelines and buffers reused across iterations. As a
 /// resource it makes the splat and backward stages blend on the GPU.
@@ -71,6 +86,8 @@ pub struct GpuRasterizer {
     /// Whether `backward` adds into the splat gradients with float atomics (else it writes
     /// per-entry partial sums that `reduce` adds up).
     atomics: bool,
+    /// Pixels of a tile column each invocation of the blending kernels blends.
+    pixel_rows: u32,
     reduce: wgpu::ComputePipeline,
     /// Tile binning and depth sort (on the CPU).
     bins: TileBins,
@@ -111,24 +128,43 @@ impl GpuRasterizer {
     }
 
     /// Builds the pipelines on an open device; the backward uses float atomics when the
-    /// device was opened with SHADER_FLOAT32_ATOMIC and SUBGROUP.
+    /// device was opened with SHADER_FLOAT32_ATOMIC and SUBGROUP. The blending kernels take 8
+    /// pixels per invocation on a software adapter (lavapipe runs every read of workgroup
+    /// memory and every subgroup operation as a loop over its SIMD lanes, so reading a splat
+    /// once for eight pixels took 30 % less time in the forward and 25 % less in the backward
+    /// than for four), one on a hardware GPU (the layout of the reference GPU rasterizers,
+    /// which keeps 256 invocations per tile to hide memory latency).
     pub fn with_context(gpu: GpuContext) -> Self {
+        let rows = if gpu.is_software() { 8 } else { 1 };
+        Self::with_pixel_rows(gpu, rows)
+    }
+
+    /// [`GpuRasterizer::with_context`] with the blending kernels set to `rows` pixels of a
+    /// tile column per invocation (1, 2, 4, 8 or 16), whatever the adapter.
+    pub fn with_pixel_rows(gpu: GpuContext, rows: u32) -> Self {
+        assert!(
+            matches!(rows, 1 | 2 | 4 | 8 | 16),
+            "pixel rows per invocation must divide the 16 rows of a tile, not {rows}"
+        );
         let device = &gpu.device;
         let pipeline = |label: &str, source: &str, entry: &str| {
             let [pipeline] = super::kernel::pipelines(device, label, source, [entry]);
             pipeline
         };
+        let blending = |label: &str, source: &str, entry: &str| {
+            pipeline(label, &with_rows(source, rows), entry)
+        };
         // The fast backward's features include SUBGROUP, which the forward uses too.
         let atomics = device.features().contains(FLOAT_ATOMIC_FEATURES);
         let (forward, backward) = if atomics {
             (
-                pipeline("raster_forward", FORWARD_SUBGROUP_WGSL, "forward"),
-                pipeline("raster_backward_atomic", BACKWARD_ATOMIC_WGSL, "backward"),
+                blending("raster_forward", FORWARD_SUBGROUP_WGSL, "forward"),
+                blending("raster_backward_atomic", BACKWARD_ATOMIC_WGSL, "backward"),
             )
         } else {
             (
-                pipeline("raster_forward", FORWARD_WGSL, "forward"),
-                pipeline("raster_backward_tiles", BACKWARD_TILES_WGSL, "backward"),
+                blending("raster_forward", FORWARD_WGSL, "forward"),
+                blending("raster_backward_tiles", BACKWARD_TILES_WGSL, "backward"),
             )
         };
         let reduce = pipeline("raster_reduce", REDUCE_WGSL, "reduce");
@@ -152,6 +188,7 @@ impl GpuRasterizer {
             forward,
             backward,
             atomics,
+            pixel_rows: rows,
             reduce,
             gpu,
             bins: TileBins::default(),
@@ -171,7 +208,16 @@ impl GpuRasterizer {
         } else {
             "per-tile sums"
         };
-        format!("{}, backward with {sums}", self.gpu.describe())
+        let rows = self.pixel_rows;
+        let per = if rows == 1 {
+            "1 pixel".to_string()
+        } else {
+            format!("{rows} pixels")
+        };
+        format!(
+            "{}, {per} per invocation, backward with {sums}",
+            self.gpu.describe()
+        )
     }
 
     /// Whether the backward uses float atomics (the fast path) rather than per-tile sums.
