@@ -97,6 +97,7 @@ fn backward(
     @builtin(local_invocation_id) lid: vec3<u32>,
     @builtin(local_invocation_index) li: u32,
 ) {
+    begin_lanes(li);
     let tile = tile_index(wg);
     let origin = wg.xy * TILE;
     let start = tile_offsets[tile];
@@ -128,7 +129,7 @@ fn backward(
                 bits ^= 1u << b;
                 let j = 32u * (w - 1u) + b;
                 let k = batch_start + j;
-                let box = staged_box(j, li);
+                let box = staged_box(j);
                 var in_splat = array<bool, PIXEL_ROWS>();
                 var any_in = false;
                 for (var r = 0u; r < PIXEL_ROWS; r++) {
@@ -137,8 +138,8 @@ fn backward(
                 }
                 // The sum of the invocation's pixels' shares.
                 var shares = array<f32, FIELDS>();
-                if any_in {
-                    let s = staged_splat(j, li);
+                if visit_splat(any_in) {
+                    let s = staged_splat(j);
                     for (var r = 0u; r < PIXEL_ROWS; r++) {
                         if in_splat[r] {
                             // Through a whole variable (SPIR-V takes no pointer to an element),

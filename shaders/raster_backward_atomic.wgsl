@@ -37,7 +37,7 @@ fn add_shares(li: u32, entry: u32, values: array<f32, FIELDS>) {
         subgroupAdd(values[3]), subgroupAdd(values[4]), subgroupAdd(values[5]),
         subgroupAdd(values[6]), subgroupAdd(values[7]), subgroupAdd(values[8]),
     );
-    if first_active(li) {
+    if reader {
         let base = FIELDS * sorted_splats[entry];
         for (var field = 0u; field < FIELDS; field++) {
             // Skip exact zeros by their bits: a float comparison `sum != 0.0` is ordered, so a

@@ -73,6 +73,7 @@ fn forward(
     @builtin(local_invocation_id) lid: vec3<u32>,
     @builtin(local_invocation_index) li: u32,
 ) {
+    begin_lanes(li);
     let tile = tile_index(wg);
     let origin = wg.xy * TILE;
     var pixels: array<Blended, PIXEL_ROWS>;
@@ -101,17 +102,17 @@ fn forward(
             while bits != 0u {
                 let j = 32u * w + countTrailingZeros(bits);
                 bits &= bits - 1u;
-                let box = staged_box(j, li);
+                let box = staged_box(j);
                 var in_splat = array<bool, PIXEL_ROWS>();
                 var any_in = false;
                 for (var r = 0u; r < PIXEL_ROWS; r++) {
                     in_splat[r] = pixels[r].open && in_box(box, local_pixel(lid, r));
                     any_in |= in_splat[r];
                 }
-                if !any_in {
+                if !visit_splat(any_in) {
                     continue;
                 }
-                let s = staged_splat(j, li);
+                let s = staged_splat(j);
                 let entry = base - start + j + 1u;
                 for (var r = 0u; r < PIXEL_ROWS; r++) {
                     if in_splat[r] {

@@ -6,6 +6,17 @@
 // broadcast cost far less than every invocation reading; on a hardware GPU a broadcast read
 // and a subgroup broadcast cost about the same.
 
+// Whether this invocation reads the splats for its subgroup: the first invocation of the
+// subgroup, chosen once when the kernel starts (`begin_lanes`). The blending kernels keep every
+// invocation of a subgroup on the same path from there on (the slots they visit and whether
+// they read a splat are subgroup-wide), so it stays the first active one; choosing it per read
+// cost two more loops over the lanes per visited slot on lavapipe.
+var<private> reader: bool;
+
+fn begin_lanes(li: u32) {
+    reader = subgroupBroadcastFirst(li) == li;
+}
+
 fn lane_candidates(own: u32) -> u32 {
     return subgroupOr(own);
 }
@@ -14,23 +25,23 @@ fn any_open(open: bool) -> bool {
     return subgroupAny(open);
 }
 
-// Whether invocation `li` is its subgroup's first active one (what subgroupElect would say).
-fn first_active(li: u32) -> bool {
-    return subgroupBroadcastFirst(li) == li;
+// Whether the subgroup reads the splat: where any of its invocations needs it.
+fn visit_splat(needed: bool) -> bool {
+    return subgroupAny(needed);
 }
 
-fn staged_box(j: u32, li: u32) -> u32 {
+fn staged_box(j: u32) -> u32 {
     var box = 0u;
-    if first_active(li) {
+    if reader {
         box = batch_box[j];
     }
     return subgroupBroadcastFirst(box);
 }
 
 // The splat of slot `j` without its extent (the pixel loops use the packed box instead).
-fn staged_splat(j: u32, li: u32) -> Splat {
+fn staged_splat(j: u32) -> Splat {
     var s: Splat;
-    if first_active(li) {
+    if reader {
         s = batch[j];
     }
     return Splat(
