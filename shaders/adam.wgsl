@@ -24,27 +24,44 @@ struct AdamParams {
 
 @group(0) @binding(0) var<uniform> params: AdamParams;
 @group(0) @binding(1) var<storage, read> step_sizes: array<f32>;
-@group(0) @binding(2) var<storage, read> grads: array<f32>;
-@group(0) @binding(3) var<storage, read_write> values: array<f32>;
-@group(0) @binding(4) var<storage, read_write> m: array<f32>;
-@group(0) @binding(5) var<storage, read_write> v: array<f32>;
+// Read and written four values at a time: on lavapipe every access of storage memory is a loop
+// over the SIMD lanes, one loop for all components of a vector, so a quad costs about what one
+// value did. The bindings cover the quads that hold elements offset .. offset + len.
+@group(0) @binding(2) var<storage, read> grads: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> values: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read_write> m: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> v: array<vec4<f32>>;
 
+// One quad of elements per invocation: the quads from the one holding element `offset` to the
+// one holding the last. Elements of a quad outside offset .. offset + len (the neighbouring
+// sections of the resident buffers) are written back as they were read.
 @compute @workgroup_size(256)
 fn adam(
     @builtin(local_invocation_index) lid: u32,
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
-    let i = (wid.y * groups.x + wid.x) * 256u + lid;
-    if i >= params.len {
+    let quad = params.offset / 4u + (wid.y * groups.x + wid.x) * 256u + lid;
+    let end = params.offset + params.len;
+    if 4u * quad >= end {
         return;
     }
-    let j = params.offset + i;
-    let g = grads[j];
-    let m_i = params.beta1 * m[j] + params.one_minus_beta1 * g;
-    let v_i = params.beta2 * v[j] + params.one_minus_beta2 * g * g;
-    m[j] = m_i;
-    v[j] = v_i;
-    let step_size = step_sizes[i % params.stride];
-    values[j] -= step_size * m_i / (sqrt(v_i / params.bias2) + params.epsilon);
+    let element = vec4<u32>(4u * quad) + vec4<u32>(0u, 1u, 2u, 3u);
+    let inside = element >= vec4<u32>(params.offset) & element < vec4<u32>(end);
+    // The step's own index of each element gives its learning-rate slot (any slot for the
+    // elements outside, which keep their values).
+    let slot = (element - params.offset) % params.stride;
+    let step_size = vec4<f32>(
+        step_sizes[slot.x], step_sizes[slot.y], step_sizes[slot.z], step_sizes[slot.w],
+    );
+    let g = grads[quad];
+    let m_old = m[quad];
+    let v_old = v[quad];
+    let value = values[quad];
+    let m_new = params.beta1 * m_old + params.one_minus_beta1 * g;
+    let v_new = params.beta2 * v_old + params.one_minus_beta2 * g * g;
+    m[quad] = select(m_old, m_new, inside);
+    v[quad] = select(v_old, v_new, inside);
+    let stepped = value - step_size * m_new / (sqrt(v_new / params.bias2) + params.epsilon);
+    values[quad] = select(value, stepped, inside);
 }

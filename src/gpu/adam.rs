@@ -239,7 +239,9 @@ impl GpuAdam {
         if len == 0 {
             return;
         }
-        let bytes = 4 * range.end as u64;
+        // The kernel reads and writes whole quads of values (`shaders/adam.wgsl`): up to three
+        // past `range.end`, inside every buffer, whose sizes are multiples of 256 bytes.
+        let bytes = 4 * range.end.next_multiple_of(4) as u64;
         let bind_group = bind(
             &self.gpu.device,
             &self.pipeline,
@@ -257,7 +259,7 @@ impl GpuAdam {
             &mut encoder,
             &self.pipeline,
             &bind_group,
-            groups_for(len as u32),
+            groups_for((range.end.div_ceil(4) - range.start / 4) as u32),
         );
         self.gpu.queue.submit([encoder.finish()]);
     }
