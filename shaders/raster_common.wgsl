@@ -2,7 +2,6 @@
 // Gaussian falloff, written to agree with the CPU reference (src/raster/) pixel for pixel.
 
 const TILE: u32 = 16u;
-const TILE_PIXELS: u32 = 256u;
 // Blending workgroups have 16 × INVOCATION_ROWS invocations per 16×16 tile, each invocation
 // blending PIXEL_ROWS pixels of one column, rows PIXEL_ROWS·y + r: what an invocation reads of
 // a splat, and what its subgroup votes and sums, then serves several pixels (on lavapipe each
