@@ -9,8 +9,12 @@ use crate::model::adam::{BETA1, BETA2, EPSILON};
 
 const ADAM_WGSL: &str = include_str!("../../shaders/adam.wgsl");
 
+/// The most values per Gaussian a parameter group may have: the step sizes per slot live in
+/// the kernel's uniform block (`step_sizes` in `shaders/adam.wgsl`).
+pub const MAX_STRIDE: usize = 256;
+
 /// `AdamParams` in `shaders/adam.wgsl`.
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
 #[repr(C)]
 struct AdamParams {
     len: u32,
@@ -24,6 +28,8 @@ struct AdamParams {
     /// First element of the step in the bound arrays.
     offset: u32,
     pad: [u32; 3],
+    /// The learning rate of each slot divided by the bias correction 1 − β1^step.
+    step_sizes: [[f32; 4]; MAX_STRIDE / 4],
 }
 
 /// One parameter group on the GPU: values, gradients and Adam moments as flat `f32` arrays,
@@ -38,9 +44,7 @@ pub struct GpuParamGroup {
     m: GrowBuffer,
     v: GrowBuffer,
     params: GrowBuffer,
-    step_sizes: GrowBuffer,
     staging: GrowBuffer,
-    host_step_sizes: Vec<f32>,
     host_read: Vec<f32>,
 }
 
@@ -48,11 +52,11 @@ impl GpuParamGroup {
     /// An empty group of `stride` values per Gaussian on `gpu`'s device.
     ///
     /// # Panics
-    /// If `stride` is 0.
+    /// If `stride` is 0 or above [`MAX_STRIDE`].
     pub fn new(gpu: &GpuContext, stride: usize) -> Self {
         assert!(
-            stride > 0,
-            "a parameter group has at least one value per Gaussian"
+            (1..=MAX_STRIDE).contains(&stride),
+            "a parameter group has 1 to {MAX_STRIDE} values per Gaussian, not {stride}"
         );
         use wgpu::BufferUsages as U;
         let device = &gpu.device;
@@ -66,9 +70,7 @@ impl GpuParamGroup {
             m: buffer("adam_m"),
             v: buffer("adam_v"),
             params: GrowBuffer::new(device, "adam_params", U::UNIFORM | U::COPY_DST),
-            step_sizes: buffer("adam_step_sizes"),
             staging: GrowBuffer::new(device, "adam_staging", U::MAP_READ | U::COPY_DST),
-            host_step_sizes: Vec::new(),
             host_read: Vec::new(),
         }
     }
@@ -189,13 +191,8 @@ impl GpuAdam {
         assert_eq!(rates.len(), group.stride, "one learning rate per slot");
         let [values, grads, m, v] =
             [&group.values, &group.grads, &group.m, &group.v].map(|b| &b.buffer);
-        let mut uniforms = AdamUniforms {
-            params: &mut group.params,
-            step_sizes: &mut group.step_sizes,
-            host: &mut group.host_step_sizes,
-        };
         self.step_range(
-            &mut uniforms,
+            &mut group.params,
             [values, grads, m, v],
             0..group.len,
             rates,
@@ -205,10 +202,11 @@ impl GpuAdam {
 
     /// One Adam step on the elements `range` of `[values, grads, m, v]` (each at least
     /// `range.end` values long), element `range.start + i` with the rate `rates[i % stride]`,
-    /// `stride = rates.len()`. Submits the work without waiting for it.
+    /// `stride = rates.len()` (at most [`MAX_STRIDE`]), the uniform block written into
+    /// `params`. Submits the work without waiting for it.
     pub(super) fn step_range(
         &self,
-        uniforms: &mut AdamUniforms<'_>,
+        params: &mut GrowBuffer,
         [values, grads, m, v]: [&wgpu::Buffer; 4],
         range: std::ops::Range<usize>,
         rates: &[f32],
@@ -217,11 +215,16 @@ impl GpuAdam {
         let step = iteration.max(1) as i32;
         let bias1 = 1.0 - BETA1.powi(step);
         let bias2 = 1.0 - BETA2.powi(step);
-        uniforms.host.clear();
-        uniforms.host.extend(rates.iter().map(|rate| rate / bias1));
-        uniforms.step_sizes.upload(&self.gpu, uniforms.host);
+        assert!(
+            rates.len() <= MAX_STRIDE,
+            "at most {MAX_STRIDE} learning rates per step"
+        );
+        let mut step_sizes = [[0.0; 4]; MAX_STRIDE / 4];
+        for (slot, rate) in rates.iter().enumerate() {
+            step_sizes[slot / 4][slot % 4] = rate / bias1;
+        }
         let len = range.len();
-        uniforms.params.upload(
+        params.upload(
             &self.gpu,
             &[AdamParams {
                 len: len as u32,
@@ -234,6 +237,7 @@ impl GpuAdam {
                 epsilon: EPSILON,
                 offset: range.start as u32,
                 pad: [0; 3],
+                step_sizes,
             }],
         );
         if len == 0 {
@@ -246,8 +250,7 @@ impl GpuAdam {
             &self.gpu.device,
             &self.pipeline,
             vec![
-                (0, uniforms.params.buffer.as_entire_binding()),
-                (1, uniforms.step_sizes.binding()),
+                (0, params.buffer.as_entire_binding()),
                 (2, storage(grads, bytes)),
                 (3, storage(values, bytes)),
                 (4, storage(m, bytes)),
@@ -263,11 +266,4 @@ impl GpuAdam {
         );
         self.gpu.queue.submit([encoder.finish()]);
     }
-}
-
-/// The uniform and step-size buffers of one Adam call (and the host scratch filling them).
-pub(super) struct AdamUniforms<'a> {
-    pub(super) params: &'a mut GrowBuffer,
-    pub(super) step_sizes: &'a mut GrowBuffer,
-    pub(super) host: &'a mut Vec<f32>,
 }

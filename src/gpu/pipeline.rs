@@ -12,7 +12,6 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::adam::AdamUniforms;
 use super::kernel::{self, bind, dispatch, groups_for, storage};
 use super::{
     DeformSettings, GpuAdam, GpuBinner, GpuContext, GpuDeformer, GpuError, GpuRasterizer, GpuStats,
@@ -105,8 +104,7 @@ pub struct GpuTraining {
     v: GrowBuffer,
     fault: GrowBuffer,
     fault_staging: GrowBuffer,
-    adam_uniforms: Vec<(GrowBuffer, GrowBuffer)>,
-    host_rates: Vec<f32>,
+    adam_uniforms: Vec<GrowBuffer>,
     host_fault: Vec<u32>,
     count: usize,
     dirty: bool,
@@ -153,10 +151,7 @@ impl GpuTraining {
             v: buffer("adam_v"),
             fault: buffer("gradient_fault"),
             fault_staging: GrowBuffer::new(device, "fault_staging", U::MAP_READ | U::COPY_DST),
-            adam_uniforms: (0..WIDTHS.len())
-                .map(|_| (uniform("adam_params"), buffer("adam_step_sizes")))
-                .collect(),
-            host_rates: Vec::new(),
+            adam_uniforms: (0..WIDTHS.len()).map(|_| uniform("adam_params")).collect(),
             host_fault: Vec::new(),
             count: 0,
             dirty: true,
@@ -365,14 +360,8 @@ impl GpuTraining {
         let mut start = 0;
         for (k, (rates, width)) in rates.into_iter().zip(WIDTHS).enumerate() {
             assert_eq!(rates.len(), width, "one learning rate per field");
-            let (params, step_sizes) = &mut self.adam_uniforms[k];
-            let mut uniforms = AdamUniforms {
-                params,
-                step_sizes,
-                host: &mut self.host_rates,
-            };
             self.adam.step_range(
-                &mut uniforms,
+                &mut self.adam_uniforms[k],
                 [
                     self.deformer.params_buffer(),
                     self.deformer.grads_buffer(),
