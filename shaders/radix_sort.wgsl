@@ -5,6 +5,11 @@
 // and `scatter_pass`, which moves each key to its digit's offset plus its stable rank among the
 // block's keys of that digit. Each invocation owns ITEMS consecutive keys, so ranks follow the
 // input order and equal keys keep it.
+//
+// Written for lavapipe as much as for a GPU: there every access of storage or workgroup memory
+// at a per-invocation address is a loop over the SIMD lanes (one loop for all components of a
+// vector), so keys and values are read as quads, and an invocation's digit counts are packed
+// into two words rather than an array indexed by the digit.
 
 struct SortPass {
     // The digit is (key >> shift) & 15.
@@ -14,21 +19,58 @@ struct SortPass {
     _pad2: u32,
 }
 
+struct SortSize {
+    // Pairs sorted.
+    count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
 const RADIX: u32 = 16u;
+// An invocation's ITEMS keys as quads.
+const QUADS: u32 = ITEMS / 4u;
 
 @group(0) @binding(0) var<uniform> pass_info: SortPass;
-@group(0) @binding(1) var<storage, read> keys_in: array<u32>;
-@group(0) @binding(2) var<storage, read> vals_in: array<u32>;
+// Bound rounded up to whole quads; elements from `size.count` on are not read as keys.
+@group(0) @binding(1) var<storage, read> keys_in: array<vec4<u32>>;
+@group(0) @binding(2) var<storage, read> vals_in: array<vec4<u32>>;
 @group(0) @binding(3) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(4) var<storage, read_write> vals_out: array<u32>;
 @group(0) @binding(5) var<storage, read_write> histogram: array<u32>;
+@group(0) @binding(6) var<uniform> size: SortSize;
 
-var<workgroup> digit_counts: array<atomic<u32>, RADIX>;
-// Digit-major table: positions[digit · THREADS + invocation].
-var<workgroup> positions: array<u32, 4096>;
+// The block's digit counts, two digits per word (16 bits each: at most BLOCK = 2048 keys).
+var<workgroup> digit_pairs: array<atomic<u32>, 8>;
+// Digit-major table: element digit · THREADS + invocation, four elements per quad.
+var<workgroup> positions: array<vec4<u32>, 1024>;
+// Where digit d's keys of this block go: their offset over all blocks less their start in the
+// block.
+var<workgroup> digit_base: array<u32, RADIX>;
 
 fn digit_of(key: u32) -> u32 {
     return (key >> pass_info.shift) & (RADIX - 1u);
+}
+
+// An invocation's digit counts, four bits per digit (ITEMS = 8 keys at most, so a count fits):
+// digits 0–7 in x, 8–15 in y.
+fn add_digit(counts: vec2<u32>, digit: u32) -> vec2<u32> {
+    let one = 1u << (4u * (digit & 7u));
+    return counts + select(vec2(one, 0u), vec2(0u, one), digit >= 8u);
+}
+
+fn count_of(counts: vec2<u32>, digit: u32) -> u32 {
+    return (select(counts.x, counts.y, digit >= 8u) >> (4u * (digit & 7u))) & 15u;
+}
+
+fn table(i: u32) -> u32 {
+    return positions[i / 4u][i % 4u];
+}
+
+// The number of blocks of BLOCK keys, or 0 when this workgroup has no block to sort.
+fn blocks_with(block: u32) -> u32 {
+    let blocks = (size.count + BLOCK - 1u) / BLOCK;
+    return select(0u, blocks, block < blocks);
 }
 
 @compute @workgroup_size(256)
@@ -38,30 +80,38 @@ fn histogram_pass(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let block = group_index(wid, groups);
-    let n = arrayLength(&keys_in);
-    let blocks = (n + BLOCK - 1u) / BLOCK;
-    if block >= blocks {
+    let blocks = blocks_with(block);
+    if blocks == 0u {
         return;
     }
-    if lid < RADIX {
-        atomicStore(&digit_counts[lid], 0u);
+    if lid < RADIX / 2u {
+        atomicStore(&digit_pairs[lid], 0u);
     }
     workgroupBarrier();
-    var counts: array<u32, RADIX>;
-    for (var i = 0u; i < ITEMS; i++) {
-        let k = block * BLOCK + i * THREADS + lid;
-        if k < n {
-            counts[digit_of(keys_in[k])] += 1u;
+    let n = size.count;
+    let first = block * BLOCK + lid * ITEMS;
+    var counts = vec2(0u);
+    for (var q = 0u; q < QUADS; q++) {
+        let at = first + 4u * q;
+        if at < n {
+            let keys = keys_in[at / 4u];
+            for (var c = 0u; c < 4u; c++) {
+                if at + c < n {
+                    counts = add_digit(counts, digit_of(keys[c]));
+                }
+            }
         }
     }
-    for (var d = 0u; d < RADIX; d++) {
-        if counts[d] > 0u {
-            atomicAdd(&digit_counts[d], counts[d]);
+    for (var p = 0u; p < RADIX / 2u; p++) {
+        let pair = count_of(counts, 2u * p) | (count_of(counts, 2u * p + 1u) << 16u);
+        if pair > 0u {
+            atomicAdd(&digit_pairs[p], pair);
         }
     }
     workgroupBarrier();
     if lid < RADIX {
-        histogram[lid * blocks + block] = atomicLoad(&digit_counts[lid]);
+        let pair = atomicLoad(&digit_pairs[lid / 2u]);
+        histogram[lid * blocks + block] = (pair >> (16u * (lid & 1u))) & 0xffffu;
     }
 }
 
@@ -72,51 +122,62 @@ fn scatter_pass(
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let block = group_index(wid, groups);
-    let n = arrayLength(&keys_in);
-    let blocks = (n + BLOCK - 1u) / BLOCK;
-    if block >= blocks {
+    let blocks = blocks_with(block);
+    if blocks == 0u {
         return;
     }
+    let n = size.count;
     let first = block * BLOCK + lid * ITEMS;
-    var keys: array<u32, ITEMS>;
-    var counts: array<u32, RADIX>;
-    for (var i = 0u; i < ITEMS; i++) {
-        let k = first + i;
-        if k < n {
-            keys[i] = keys_in[k];
-            counts[digit_of(keys[i])] += 1u;
+    var keys: array<vec4<u32>, QUADS>;
+    var vals: array<vec4<u32>, QUADS>;
+    var counts = vec2(0u);
+    for (var q = 0u; q < QUADS; q++) {
+        let at = first + 4u * q;
+        if at < n {
+            keys[q] = keys_in[at / 4u];
+            vals[q] = vals_in[at / 4u];
+            for (var c = 0u; c < 4u; c++) {
+                if at + c < n {
+                    counts = add_digit(counts, digit_of(keys[q][c]));
+                }
+            }
         }
     }
     for (var d = 0u; d < RADIX; d++) {
-        positions[d * THREADS + lid] = counts[d];
+        let i = d * THREADS + lid;
+        positions[i / 4u][i % 4u] = count_of(counts, d);
     }
     workgroupBarrier();
-    // Exclusive scan of the digit-major table: where each invocation's keys of each digit start
-    // in the block sorted by digit.
+    // Exclusive scan of the digit-major table: invocation lid owns its quads 4·lid .. 4·lid + 3,
+    // then adds what the invocations before it hold.
+    var scanned: array<vec4<u32>, 4>;
     var total = 0u;
-    for (var j = 0u; j < RADIX; j++) {
-        let x = positions[lid * RADIX + j];
-        positions[lid * RADIX + j] = total;
-        total += x;
+    for (var j = 0u; j < 4u; j++) {
+        let x = positions[4u * lid + j];
+        scanned[j] = vec4(total, total + x.x, total + x.x + x.y, total + x.x + x.y + x.z);
+        total += x.x + x.y + x.z + x.w;
     }
-    let scan = workgroup_scan(lid, total);
-    for (var j = 0u; j < RADIX; j++) {
-        positions[lid * RADIX + j] += scan.x;
+    let before = workgroup_scan(lid, total).x;
+    for (var j = 0u; j < 4u; j++) {
+        positions[4u * lid + j] = scanned[j] + before;
     }
     workgroupBarrier();
-    for (var d = 0u; d < RADIX; d++) {
-        counts[d] = 0u;
+    if lid < RADIX {
+        digit_base[lid] = histogram[lid * blocks + block] - table(lid * THREADS);
     }
-    for (var i = 0u; i < ITEMS; i++) {
-        let k = first + i;
-        if k < n {
-            let d = digit_of(keys[i]);
-            // Rank among the block's keys of digit d, in input order.
-            let rank = positions[d * THREADS + lid] + counts[d] - positions[d * THREADS];
-            counts[d] += 1u;
-            let dst = histogram[d * blocks + block] + rank;
-            keys_out[dst] = keys[i];
-            vals_out[dst] = vals_in[k];
+    workgroupBarrier();
+    // Each key's rank among the block's keys of its digit, in input order.
+    var seen = vec2(0u);
+    for (var q = 0u; q < QUADS; q++) {
+        for (var c = 0u; c < 4u; c++) {
+            if first + 4u * q + c < n {
+                let key = keys[q][c];
+                let d = digit_of(key);
+                let dst = digit_base[d] + table(d * THREADS + lid) + count_of(seen, d);
+                seen = add_digit(seen, d);
+                keys_out[dst] = key;
+                vals_out[dst] = vals[q][c];
+            }
         }
     }
 }

@@ -61,6 +61,8 @@ impl From<&Splat> for SplatBox {
 struct SortBuffers {
     keys: [GrowBuffer; 2],
     values: [GrowBuffer; 2],
+    /// `SortSize` in `shaders/radix_sort.wgsl`: the number of pairs.
+    count: wgpu::Buffer,
 }
 
 impl SortBuffers {
@@ -71,6 +73,12 @@ impl SortBuffers {
         Self {
             keys: [buffer("sort_keys"), buffer("sort_keys")],
             values: [buffer("sort_values"), buffer("sort_values")],
+            count: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("sort_count"),
+                size: 16,
+                usage: U::UNIFORM | U::COPY_DST,
+                mapped_at_creation: false,
+            }),
         }
     }
 
@@ -196,19 +204,25 @@ impl GpuRadixSort {
             return 0;
         }
         let device = &self.gpu.device;
+        self.gpu
+            .queue
+            .write_buffer(&bufs.count, 0, bytemuck::cast_slice(&[n, 0, 0, 0]));
         let passes = bits.min(32).div_ceil(DIGIT_BITS) as usize;
         let blocks = n.div_ceil(BLOCK);
         let hist_len = RADIX * blocks;
         let bytes = 4 * n as u64;
+        // The kernels read keys and values as quads (buffer sizes are multiples of 256 bytes).
+        let quad_bytes = bytes.next_multiple_of(16);
         let hist = || storage(&self.hist.buffer, 4 * hist_len as u64);
+        let count = || bufs.count.as_entire_binding();
         for p in 0..passes {
             let (src, dst) = (p % 2, 1 - p % 2);
             let shift = || self.shifts[p].as_entire_binding();
-            let keys_in = || storage(&bufs.keys[src].buffer, bytes);
+            let keys_in = || storage(&bufs.keys[src].buffer, quad_bytes);
             let group = bind(
                 device,
                 &self.histogram,
-                vec![(0, shift()), (1, keys_in()), (5, hist())],
+                vec![(0, shift()), (1, keys_in()), (5, hist()), (6, count())],
             );
             dispatch(encoder, &self.histogram, &group, blocks);
             self.scan.encode(encoder, &self.hist.buffer, hist_len);
@@ -218,10 +232,11 @@ impl GpuRadixSort {
                 vec![
                     (0, shift()),
                     (1, keys_in()),
-                    (2, storage(&bufs.values[src].buffer, bytes)),
+                    (2, storage(&bufs.values[src].buffer, quad_bytes)),
                     (3, storage(&bufs.keys[dst].buffer, bytes)),
                     (4, storage(&bufs.values[dst].buffer, bytes)),
                     (5, hist()),
+                    (6, count()),
                 ],
             );
             dispatch(encoder, &self.scatter, &group, blocks);
