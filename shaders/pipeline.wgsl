@@ -8,9 +8,11 @@
 // `crate::raster::min_power` and `crate::gpu::sort::SplatBox::from` compute them.
 //
 // `check`: the smallest flat index of a non-finite value in the parameter gradients, by an
-// atomic minimum into `fault[0]` (which the host sets to 0xffffffff first).
+// atomic minimum into `fault[0]` (which the host sets to 0xffffffff first), one quad of
+// gradients per invocation.
 
 const ALPHA_MIN: f32 = 0.003921569; // 1/255
+const NO_FAULT: u32 = 0xffffffffu;
 
 struct PipelineParams {
     count: u32,
@@ -20,11 +22,14 @@ struct PipelineParams {
 }
 
 @group(0) @binding(0) var<uniform> params: PipelineParams;
-@group(0) @binding(1) var<storage, read> splats: array<f32>;
-@group(0) @binding(2) var<storage, read_write> boxes: array<u32>;
-@group(0) @binding(3) var<storage, read_write> raster_splats: array<f32>;
+// Read and written in vectors: on lavapipe every access of storage memory at a per-invocation
+// address is a loop over the SIMD lanes, one loop for all components of a vector.
+@group(0) @binding(1) var<storage, read> splats: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> boxes: array<vec2<u32>>;
+@group(0) @binding(3) var<storage, read_write> raster_splats: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read_write> opacity: array<f32>;
-@group(0) @binding(5) var<storage, read> grads: array<f32>;
+// Bound rounded up to whole quads; elements from `params.grad_len` on are not checked.
+@group(0) @binding(5) var<storage, read> grads: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> fault: array<atomic<u32>>;
 
 fn flat_index(lid: u32, wid: vec3<u32>, groups: vec3<u32>) -> u32 {
@@ -41,25 +46,20 @@ fn pack(
     if i >= params.count {
         return;
     }
-    let s = i * 16u;
-    let b = i * 6u;
-    for (var k = 0u; k < 4u; k++) {
-        boxes[b + k] = bitcast<u32>(splats[s + k]);
-    }
-    boxes[b + 4u] = bitcast<u32>(splats[s + 7u]);
-    let visible = splats[s + 12u] != 0.0;
-    let faded = splats[s + 13u] != 0.0;
-    boxes[b + 5u] = select(select(0u, 2u, faded), 1u, visible);
-    let r = i * 12u;
-    let alpha = splats[s + 11u];
-    for (var k = 0u; k < 7u; k++) {
-        raster_splats[r + k] = splats[s + k];
-    }
-    raster_splats[r + 7u] = log(ALPHA_MIN / alpha) - 1e-4;
-    raster_splats[r + 8u] = splats[s + 8u];
-    raster_splats[r + 9u] = splats[s + 9u];
-    raster_splats[r + 10u] = splats[s + 10u];
-    raster_splats[r + 11u] = alpha;
+    // The projected splat's quads: mean, extent; conic, depth; colour, opacity; visible, faded.
+    let a = splats[4u * i];
+    let b = splats[4u * i + 1u];
+    let c = splats[4u * i + 2u];
+    let d = splats[4u * i + 3u];
+    let visible = d.x != 0.0;
+    let faded = d.y != 0.0;
+    boxes[3u * i] = bitcast<vec2<u32>>(a.xy);
+    boxes[3u * i + 1u] = bitcast<vec2<u32>>(a.zw);
+    boxes[3u * i + 2u] = vec2(bitcast<u32>(b.w), select(select(0u, 2u, faded), 1u, visible));
+    let alpha = c.w;
+    raster_splats[3u * i] = a;
+    raster_splats[3u * i + 1u] = vec4(b.xyz, log(ALPHA_MIN / alpha) - 1e-4);
+    raster_splats[3u * i + 2u] = vec4(c.xyz, alpha);
     opacity[i] = alpha;
 }
 
@@ -69,12 +69,16 @@ fn check(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
-    let i = flat_index(lid, wid, groups);
-    if i >= params.grad_len {
+    let quad = flat_index(lid, wid, groups);
+    let element = vec4<u32>(4u * quad) + vec4<u32>(0u, 1u, 2u, 3u);
+    if element.x >= params.grad_len {
         return;
     }
-    let bits = bitcast<u32>(grads[i]);
-    if (bits & 0x7f800000u) == 0x7f800000u {
-        atomicMin(&fault[0], i);
+    let bits = bitcast<vec4<u32>>(grads[quad]);
+    let bad = (bits & vec4(0x7f800000u)) == vec4(0x7f800000u) & element < vec4(params.grad_len);
+    if any(bad) {
+        // The quad's first non-finite element.
+        let found = select(vec4(NO_FAULT), element, bad);
+        atomicMin(&fault[0], min(min(found.x, found.y), min(found.z, found.w)));
     }
 }

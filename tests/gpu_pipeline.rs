@@ -438,8 +438,108 @@ fn non_finite_gradients_are_caught() {
     let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
         return;
     };
+    let (mut training, out) = resident_after_forward(&ctx);
+    let pixels = out.alpha.len();
+    let mut d_color = vec![[1e-3f32; 3]; pixels];
+    assert_eq!(training.backward(&d_color).unwrap(), None);
+    // An infinite, then a NaN gradient at every pixel that shows a splat reaches the
+    // parameter gradients of the splats under them (±inf or NaN: inf·0, inf − inf), and the
+    // check names the first one. Float comparisons in the kernels are ordered, so a NaN
+    // skipped by a `!=` test would be lost here.
+    for bad in [f32::INFINITY, f32::NAN] {
+        for (d, a) in d_color.iter_mut().zip(&out.alpha) {
+            if *a > 0.01 {
+                d[1] = bad;
+            }
+        }
+        let fault = training.backward(&d_color).unwrap();
+        let mut grads = tadgs::gpu::ParamGradients::default();
+        training.read_gradients(&mut grads).unwrap();
+        let first = grads
+            .position
+            .iter()
+            .position(|g| !g.0.values().iter().all(|v| v.is_finite()));
+        eprintln!("dL/dcolour {bad}: {fault:?}; first non-finite position gradient {first:?}");
+        let first = first.expect("the bad dL/dcolour reaches the position gradients");
+        assert_eq!(
+            fault,
+            Some(tadgs::gpu::GradientFault {
+                group: Position::NAME,
+                gaussian: first
+            }),
+            "the first non-finite gradient is reported"
+        );
+    }
+}
+
+/// The check names the exact value: one NaN or infinity planted at chosen places of otherwise
+/// finite gradients (first and last value of the buffer, a Gaussian's first value inside a quad
+/// that starts in the Gaussian before it, a later section while an earlier one is clean) is
+/// reported with its section and Gaussian; with two planted, the earlier one.
+#[test]
+fn gradient_check_reports_the_first_non_finite_value() {
+    let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
+        return;
+    };
+    let (mut training, out) = resident_after_forward(&ctx);
+    let n = training.len();
+    // A backward pass gives the gradients their buffer and finite values.
+    let d_color = vec![[1e-3f32; 3]; out.alpha.len()];
+    assert_eq!(training.backward(&d_color).unwrap(), None);
+    let mut finite = Vec::new();
+    training.read_gradient_values(&mut finite).unwrap();
+    assert!(finite.iter().all(|g| g.is_finite()));
+    let len = finite.len();
+    assert_eq!(len, n * tadgs::layout::PARAM_FLOATS);
+    let fault_at = |index: usize| {
+        let mut start = 0;
+        for (k, width) in tadgs::layout::WIDTHS.into_iter().enumerate() {
+            if index < start + width * n {
+                return tadgs::gpu::GradientFault {
+                    group: tadgs::layout::SECTION_NAMES[k],
+                    gaussian: (index - start) / width,
+                };
+            }
+            start += width * n;
+        }
+        unreachable!()
+    };
+    // Position values are three per Gaussian: value 3 (Gaussian 1) shares quad 0 with Gaussian 0.
+    let cases: [&[usize]; 7] = [
+        &[0],
+        &[3],
+        &[7],
+        &[3 * n + 5],
+        &[len - 1],
+        &[len - 1, 10],
+        &[4 * n + 2, 4 * n + 1],
+    ];
+    for (case, planted) in cases.into_iter().enumerate() {
+        let mut grads = finite.clone();
+        for (k, &index) in planted.iter().enumerate() {
+            grads[index] = if (case + k) % 2 == 0 {
+                f32::NAN
+            } else {
+                f32::NEG_INFINITY
+            };
+        }
+        training.write_gradient_values(&grads);
+        let first = *planted.iter().min().unwrap();
+        assert_eq!(
+            training.check_gradients().unwrap(),
+            Some(fault_at(first)),
+            "values {planted:?} made non-finite"
+        );
+    }
+    training.write_gradient_values(&finite);
+    assert_eq!(training.check_gradients().unwrap(), None);
+}
+
+/// The small scene's CPU world uploaded by hand into a resident GPU pipeline, after one forward
+/// pass at the world's sampled view.
+fn resident_after_forward(ctx: &GpuContext) -> (GpuTraining, tadgs::raster::RenderOutput) {
     let (config, dataset) = small_scene();
-    let [mut cpu, _] = trainers(&config, &dataset, &ctx);
+    let [mut cpu, _] = trainers(&config, &dataset, ctx);
     // The resident state of the CPU world, uploaded by hand.
     let world = &mut cpu.world;
     let mut state = ResidentState::default();
@@ -482,35 +582,5 @@ fn non_finite_gradients_are_caught() {
     training
         .forward(&warped, &sample.camera, &deform, [0.0; 3], &mut out)
         .unwrap();
-    let pixels = (sample.camera.width * sample.camera.height) as usize;
-    let mut d_color = vec![[1e-3f32; 3]; pixels];
-    assert_eq!(training.backward(&d_color).unwrap(), None);
-    // An infinite, then a NaN gradient at every pixel that shows a splat reaches the
-    // parameter gradients of the splats under them (±inf or NaN: inf·0, inf − inf), and the
-    // check names the first one. Float comparisons in the kernels are ordered, so a NaN
-    // skipped by a `!=` test would be lost here.
-    for bad in [f32::INFINITY, f32::NAN] {
-        for (d, a) in d_color.iter_mut().zip(&out.alpha) {
-            if *a > 0.01 {
-                d[1] = bad;
-            }
-        }
-        let fault = training.backward(&d_color).unwrap();
-        let mut grads = tadgs::gpu::ParamGradients::default();
-        training.read_gradients(&mut grads).unwrap();
-        let first = grads
-            .position
-            .iter()
-            .position(|g| !g.0.values().iter().all(|v| v.is_finite()));
-        eprintln!("dL/dcolour {bad}: {fault:?}; first non-finite position gradient {first:?}");
-        let first = first.expect("the bad dL/dcolour reaches the position gradients");
-        assert_eq!(
-            fault,
-            Some(tadgs::gpu::GradientFault {
-                group: Position::NAME,
-                gaussian: first
-            }),
-            "the first non-finite gradient is reported"
-        );
-    }
+    (training, out)
 }

@@ -297,6 +297,12 @@ impl GpuTraining {
     pub fn backward(&mut self, d_color: &[[f32; 3]]) -> Result<Option<GradientFault>, GpuError> {
         let splat_grads = self.raster.backward_resident(d_color);
         self.deformer.backward_resident(splat_grads);
+        self.check_gradients()
+    }
+
+    /// The first non-finite resident parameter gradient (by section, then slot), as
+    /// [`GpuTraining::backward`] finds it, reading back 4 bytes.
+    pub fn check_gradients(&mut self) -> Result<Option<GradientFault>, GpuError> {
         let n = self.count;
         let grad_len = n * PARAM_FLOATS;
         let device = &self.gpu.device;
@@ -312,9 +318,13 @@ impl GpuTraining {
                 &self.check,
                 vec![
                     (0, self.uniform.buffer.as_entire_binding()),
+                    // Read as quads (the buffer's size is a multiple of 256 bytes).
                     (
                         5,
-                        storage(self.deformer.grads_buffer(), 4 * grad_len as u64),
+                        storage(
+                            self.deformer.grads_buffer(),
+                            4 * grad_len.next_multiple_of(4) as u64,
+                        ),
                     ),
                     (6, self.fault.binding()),
                 ],
@@ -323,7 +333,7 @@ impl GpuTraining {
                 &mut encoder,
                 &self.check,
                 &group,
-                groups_for(grad_len as u32),
+                groups_for(grad_len.div_ceil(4) as u32),
             );
         }
         encoder.copy_buffer_to_buffer(&self.fault.buffer, 0, &self.fault_staging.buffer, 0, 4);
