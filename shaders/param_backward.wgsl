@@ -3,7 +3,8 @@
 // through the projection (project_backward, covariance_3d_backward) to the deformed Gaussian
 // (backward_splats, which also gives the NDC-space 2D mean gradient norm for densification),
 // then through the SH colour and the deformation to every parameter component
-// (backward_parameters). Splats not drawn pass a zero gradient, as on the CPU.
+// (backward_parameters). Splats not drawn pass a zero gradient, as on the CPU (the host clears
+// the gradients first; their invocations only zero their NDC norm).
 
 @group(0) @binding(3) var<storage, read> deformed: array<f32>;
 @group(0) @binding(4) var<storage, read> splats: array<f32>;
@@ -181,33 +182,29 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>,
     if i >= frame.count {
         return;
     }
-    let visible = splats[i * SPLAT_STRIDE + 12u] != 0.0;
+    // Splats not drawn pass a zero gradient, as on the CPU: the host clears the gradients
+    // before this pass, so their Gaussians (on a trained 4D model most of them, faded at the
+    // view's time) neither read their parameters nor write.
+    if splats[i * SPLAT_STRIDE + 12u] == 0.0 {
+        ndc_grad_norm[i] = 0.0;
+        return;
+    }
     let sg = i * SPLAT_GRAD_STRIDE;
     let d_mean2d = vec2<f32>(splat_grads[sg], splat_grads[sg + 1u]);
     let d_conic = vec3<f32>(splat_grads[sg + 2u], splat_grads[sg + 3u], splat_grads[sg + 4u]);
-    let d_opacity_in = splat_grads[sg + 5u];
-    let d_color_in = vec3<f32>(splat_grads[sg + 6u], splat_grads[sg + 7u], splat_grads[sg + 8u]);
+    let d_opacity = splat_grads[sg + 5u];
+    let d_color = vec3<f32>(splat_grads[sg + 6u], splat_grads[sg + 7u], splat_grads[sg + 8u]);
 
     let d = i * DEFORMED_STRIDE;
     let deformed_mean = vec3<f32>(deformed[d], deformed[d + 1u], deformed[d + 2u]);
 
     // backward_splats: NDC spans the image over [−1, 1], one pixel is 2/W (2/H) NDC units.
-    var dg: DeformedGrad;
-    var d_opacity = 0.0;
-    var d_color = vec3<f32>(0.0);
-    var ndc = 0.0;
-    if visible {
-        let half = vec2<f32>(0.5 * frame.view.x, 0.5 * frame.view.y);
-        let g = d_mean2d * half;
-        ndc = sqrt(g.x * g.x + g.y * g.y);
-        let quat = vec4<f32>(deformed[d + 3u], deformed[d + 4u], deformed[d + 5u],
-                             deformed[d + 6u]);
-        let scale = vec3<f32>(deformed[d + 7u], deformed[d + 8u], deformed[d + 9u]);
-        dg = project_backward(deformed_mean, quat, scale, d_mean2d, d_conic);
-        d_opacity = d_opacity_in;
-        d_color = d_color_in;
-    }
-    ndc_grad_norm[i] = ndc;
+    let half = vec2<f32>(0.5 * frame.view.x, 0.5 * frame.view.y);
+    let g = d_mean2d * half;
+    ndc_grad_norm[i] = sqrt(g.x * g.x + g.y * g.y);
+    let quat = vec4<f32>(deformed[d + 3u], deformed[d + 4u], deformed[d + 5u], deformed[d + 6u]);
+    let scale = vec3<f32>(deformed[d + 7u], deformed[d + 8u], deformed[d + 9u]);
+    let dg = project_backward(deformed_mean, quat, scale, d_mean2d, d_conic);
 
     // backward_parameters.
     let gs = load_gaussian(i);

@@ -629,6 +629,8 @@ impl GpuDeformer {
             return;
         }
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        // The kernel writes the gradients of drawn splats' Gaussians only.
+        encoder.clear_buffer(&self.grads.buffer, 0, Some((n * PARAM_FLOATS * 4) as u64));
         let group = self.backward_group.get(
             gpu,
             &self.backward,
