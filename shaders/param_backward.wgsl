@@ -11,6 +11,13 @@
 @group(0) @binding(5) var<storage, read> splat_grads: array<f32>;
 @group(0) @binding(6) var<storage, read_write> grads: array<f32>;
 @group(0) @binding(7) var<storage, read_write> ndc_grad_norm: array<f32>;
+// The smallest flat index of a non-finite gradient written (the host sets 0xffffffff first):
+// the gradient check, done on the values as they are written rather than by reading them back.
+@group(0) @binding(8) var<storage, read_write> fault: array<atomic<u32>>;
+
+const NO_FAULT: u32 = 0xffffffffu;
+// This invocation's first non-finite gradient so far.
+var<private> first_fault: u32 = NO_FAULT;
 
 // Gradient with respect to the deformed Gaussian (src/resources.rs::DeformedGrad).
 struct DeformedGrad {
@@ -156,23 +163,31 @@ fn sh_basis_backward(count: u32, n: vec3<f32>, db: array<f32, 16>) -> vec3<f32> 
     return g;
 }
 
+// Writes gradient `at` and notes it when it is not finite.
+fn write_at(at: u32, value: f32) {
+    grads[at] = value;
+    if (bitcast<u32>(value) & 0x7f800000u) == 0x7f800000u {
+        first_fault = min(first_fault, at);
+    }
+}
+
 fn write_grad(i: u32, prefix: u32, width: u32, k: u32, value: f32) {
-    grads[frame.count * prefix + i * width + k] = value;
+    write_at(frame.count * prefix + i * width + k, value);
 }
 
 fn write_grad3(i: u32, prefix: u32, width: u32, k: u32, value: vec3<f32>) {
     let at = frame.count * prefix + i * width + k;
-    grads[at] = value.x;
-    grads[at + 1u] = value.y;
-    grads[at + 2u] = value.z;
+    write_at(at, value.x);
+    write_at(at + 1u, value.y);
+    write_at(at + 2u, value.z);
 }
 
 fn write_grad4(i: u32, prefix: u32, width: u32, k: u32, value: vec4<f32>) {
     let at = frame.count * prefix + i * width + k;
-    grads[at] = value.x;
-    grads[at + 1u] = value.y;
-    grads[at + 2u] = value.z;
-    grads[at + 3u] = value.w;
+    write_at(at, value.x);
+    write_at(at + 1u, value.y);
+    write_at(at + 2u, value.z);
+    write_at(at + 3u, value.w);
 }
 
 @compute @workgroup_size(64)
@@ -276,4 +291,7 @@ fn backward(@builtin(global_invocation_id) gid: vec3<u32>,
     d_raw[tf.index] = d_opacity * sigma * tf.d_exponent;
     write_grad(i, PREFIX_OPACITY, WIDTH_OPACITY, 0u, d_opacity * tf.factor * spatial * (1.0 - spatial));
     write_grad3(i, PREFIX_TEMPORAL, WIDTH_TEMPORAL, 0u, vec3<f32>(0.0, d_raw));
+    if first_fault != NO_FAULT {
+        atomicMin(&fault[0], first_fault);
+    }
 }

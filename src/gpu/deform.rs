@@ -50,6 +50,8 @@ use crate::layout::{PARAM_FLOATS, WIDTHS, sections_of};
 const SPLAT_FLOATS: usize = 16;
 /// f32 values per splat gradient (`SPLAT_GRAD_STRIDE`, the rasterizer's layout).
 const SPLAT_GRAD_FLOATS: usize = 9;
+/// A gradient check's "nothing found" (`NO_FAULT` in the shaders).
+pub(super) const NO_FAULT: u32 = u32::MAX;
 
 const DEFORM_WGSL: &str = concat!(
     include_str!("../../shaders/param_layout.wgsl"),
@@ -307,6 +309,9 @@ pub struct GpuDeformer {
     splat_grads: GrowBuffer,
     grads: GrowBuffer,
     ndc_grad_norm: GrowBuffer,
+    /// The smallest flat index of a non-finite gradient of the last backward pass, or
+    /// [`NO_FAULT`].
+    fault: GrowBuffer,
     staging: GrowBuffer,
     deform_group: CachedBindGroup,
     project_group: CachedBindGroup,
@@ -354,6 +359,7 @@ impl GpuDeformer {
             splat_grads: buffer("param_splat_grads"),
             grads: buffer("param_grads"),
             ndc_grad_norm: buffer("ndc_grad_norm"),
+            fault: buffer("gradient_fault"),
             staging: GrowBuffer::new(device, "deform_staging", U::MAP_READ | U::COPY_DST),
             deform,
             project,
@@ -579,6 +585,12 @@ impl GpuDeformer {
         &self.ndc_grad_norm.buffer
     }
 
+    /// The smallest flat index (the resident layout) of a non-finite parameter gradient the
+    /// last backward pass wrote, or [`NO_FAULT`] (one `u32`).
+    pub(super) fn fault_buffer(&self) -> &wgpu::Buffer {
+        &self.fault.buffer
+    }
+
     /// Reserves the parameter buffer for `count` Gaussians without writing it (the caller
     /// fills it).
     pub(super) fn reserve(&mut self, count: usize) -> Result<(), GpuError> {
@@ -625,6 +637,9 @@ impl GpuDeformer {
         self.grads
             .reserve(&gpu.device, (n * PARAM_FLOATS * 4) as u64);
         self.ndc_grad_norm.reserve(&gpu.device, (n * 4) as u64);
+        self.fault.reserve(&gpu.device, 4);
+        gpu.queue
+            .write_buffer(&self.fault.buffer, 0, bytemuck::bytes_of(&NO_FAULT));
         if n == 0 {
             return;
         }
@@ -643,6 +658,7 @@ impl GpuDeformer {
                 &self.splat_grads.buffer,
                 &self.grads.buffer,
                 &self.ndc_grad_norm.buffer,
+                &self.fault.buffer,
             ],
         );
         dispatch(&mut encoder, &self.backward, group, n);

@@ -12,6 +12,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use super::deform::NO_FAULT;
 use super::kernel::{self, bind, dispatch, groups_for, storage};
 use super::{
     DeformSettings, GpuAdam, GpuBinner, GpuContext, GpuDeformer, GpuError, GpuRasterizer, GpuStats,
@@ -28,8 +29,6 @@ const PIPELINE_WGSL: &str = include_str!("../../shaders/pipeline.wgsl");
 const SPLAT_FLOATS: u64 = 16;
 /// Floats per splat of the rasterizer (`Splat` in `shaders/raster_common.wgsl`).
 const RASTER_SPLAT_FLOATS: u64 = 12;
-/// The gradient check's "nothing found".
-const NO_FAULT: u32 = u32::MAX;
 
 /// `PipelineParams` in `shaders/pipeline.wgsl`.
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
@@ -296,23 +295,24 @@ impl GpuTraining {
     /// returns the first non-finite one (by section, then slot), reading back 4 bytes.
     pub fn backward(&mut self, d_color: &[[f32; 3]]) -> Result<Option<GradientFault>, GpuError> {
         let splat_grads = self.raster.backward_resident(d_color);
+        // The parameter backward notes the first non-finite gradient as it writes them.
         self.deformer.backward_resident(splat_grads);
-        self.check_gradients()
+        self.read_fault(false)
     }
 
-    /// The first non-finite resident parameter gradient (by section, then slot), as
-    /// [`GpuTraining::backward`] finds it, reading back 4 bytes.
+    /// The first non-finite resident parameter gradient (by section, then slot), found by
+    /// reading the gradients back on the device (the `check` kernel), e.g. after
+    /// [`GpuTraining::write_gradient_values`]; reads back 4 bytes.
     pub fn check_gradients(&mut self) -> Result<Option<GradientFault>, GpuError> {
         let n = self.count;
         let grad_len = n * PARAM_FLOATS;
         let device = &self.gpu.device;
         self.fault.reserve(device, 4);
-        self.fault_staging.reserve(device, 4);
         self.gpu
             .queue
             .write_buffer(&self.fault.buffer, 0, bytemuck::bytes_of(&NO_FAULT));
-        let mut encoder = device.create_command_encoder(&Default::default());
         if n > 0 {
+            let mut encoder = device.create_command_encoder(&Default::default());
             let group = bind(
                 device,
                 &self.check,
@@ -335,8 +335,23 @@ impl GpuTraining {
                 &group,
                 groups_for(grad_len.div_ceil(4) as u32),
             );
+            self.gpu.queue.submit([encoder.finish()]);
         }
-        encoder.copy_buffer_to_buffer(&self.fault.buffer, 0, &self.fault_staging.buffer, 0, 4);
+        self.read_fault(true)
+    }
+
+    /// Reads back the fault index of the `check` kernel (`from_check`) or of the last
+    /// parameter backward, and names its section and Gaussian.
+    fn read_fault(&mut self, from_check: bool) -> Result<Option<GradientFault>, GpuError> {
+        let device = &self.gpu.device;
+        self.fault_staging.reserve(device, 4);
+        let fault = if from_check {
+            &self.fault.buffer
+        } else {
+            self.deformer.fault_buffer()
+        };
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(fault, 0, &self.fault_staging.buffer, 0, 4);
         self.gpu.queue.submit([encoder.finish()]);
         self.gpu
             .read_back(&self.fault_staging.buffer, 4, &mut self.host_fault)?;
@@ -347,7 +362,7 @@ impl GpuTraining {
         let index = index as usize;
         let mut start = 0;
         for (k, width) in WIDTHS.iter().enumerate() {
-            let end = start + width * n;
+            let end = start + width * self.count;
             if index < end {
                 return Ok(Some(GradientFault {
                     group: SECTION_NAMES[k],
