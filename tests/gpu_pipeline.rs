@@ -438,10 +438,8 @@ fn non_finite_gradients_are_caught() {
     let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
         return;
     };
-    let (mut training, out) = resident_after_forward(&ctx);
-    let pixels = out.alpha.len();
-    let mut d_color = vec![[1e-3f32; 3]; pixels];
-    assert_eq!(training.backward(&d_color).unwrap(), None);
+    let (mut training, out) = resident_after_clean_backward(&ctx);
+    let mut d_color = vec![[1e-3f32; 3]; out.alpha.len()];
     // An infinite, then a NaN gradient at every pixel that shows a splat reaches the
     // parameter gradients of the splats under them (±inf or NaN: inf·0, inf − inf), and the
     // check names the first one. Float comparisons in the kernels are ordered, so a NaN
@@ -481,11 +479,8 @@ fn gradient_check_reports_the_first_non_finite_value() {
     let Some(ctx) = gpu::open_or_skip(|| GpuContext::new(true)) else {
         return;
     };
-    let (mut training, out) = resident_after_forward(&ctx);
+    let (mut training, _) = resident_after_clean_backward(&ctx);
     let n = training.len();
-    // A backward pass gives the gradients their buffer and finite values.
-    let d_color = vec![[1e-3f32; 3]; out.alpha.len()];
-    assert_eq!(training.backward(&d_color).unwrap(), None);
     let mut finite = Vec::new();
     training.read_gradient_values(&mut finite).unwrap();
     assert!(finite.iter().all(|g| g.is_finite()));
@@ -536,8 +531,9 @@ fn gradient_check_reports_the_first_non_finite_value() {
 }
 
 /// The small scene's CPU world uploaded by hand into a resident GPU pipeline, after one forward
-/// pass at the world's sampled view.
-fn resident_after_forward(ctx: &GpuContext) -> (GpuTraining, tadgs::raster::RenderOutput) {
+/// pass at the world's sampled view and a backward pass of a small finite dL/dcolour (which
+/// finds every gradient finite).
+fn resident_after_clean_backward(ctx: &GpuContext) -> (GpuTraining, tadgs::raster::RenderOutput) {
     let (config, dataset) = small_scene();
     let [mut cpu, _] = trainers(&config, &dataset, ctx);
     // The resident state of the CPU world, uploaded by hand.
@@ -582,5 +578,7 @@ fn resident_after_forward(ctx: &GpuContext) -> (GpuTraining, tadgs::raster::Rend
     training
         .forward(&warped, &sample.camera, &deform, [0.0; 3], &mut out)
         .unwrap();
+    let d_color = vec![[1e-3f32; 3]; out.alpha.len()];
+    assert_eq!(training.backward(&d_color).unwrap(), None);
     (training, out)
 }
