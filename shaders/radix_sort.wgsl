@@ -59,6 +59,17 @@ fn add_digit(counts: vec2<u32>, digit: u32) -> vec2<u32> {
     return counts + select(vec2(one, 0u), vec2(0u, one), digit >= 8u);
 }
 
+// `counts` with the digits of the quad of keys that starts at key `at`, those below `n`.
+fn add_quad(counts: vec2<u32>, keys: vec4<u32>, at: u32, n: u32) -> vec2<u32> {
+    var out = counts;
+    for (var c = 0u; c < 4u; c++) {
+        if at + c < n {
+            out = add_digit(out, digit_of(keys[c]));
+        }
+    }
+    return out;
+}
+
 fn count_of(counts: vec2<u32>, digit: u32) -> u32 {
     return (select(counts.x, counts.y, digit >= 8u) >> (4u * (digit & 7u))) & 15u;
 }
@@ -94,12 +105,7 @@ fn histogram_pass(
     for (var q = 0u; q < QUADS; q++) {
         let at = first + 4u * q;
         if at < n {
-            let keys = keys_in[at / 4u];
-            for (var c = 0u; c < 4u; c++) {
-                if at + c < n {
-                    counts = add_digit(counts, digit_of(keys[c]));
-                }
-            }
+            counts = add_quad(counts, keys_in[at / 4u], at, n);
         }
     }
     for (var p = 0u; p < RADIX / 2u; p++) {
@@ -136,11 +142,7 @@ fn scatter_pass(
         if at < n {
             keys[q] = keys_in[at / 4u];
             vals[q] = vals_in[at / 4u];
-            for (var c = 0u; c < 4u; c++) {
-                if at + c < n {
-                    counts = add_digit(counts, digit_of(keys[q][c]));
-                }
-            }
+            counts = add_quad(counts, keys[q], at, n);
         }
     }
     for (var d = 0u; d < RADIX; d++) {
