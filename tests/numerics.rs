@@ -12,9 +12,10 @@ use proptest::prelude::*;
 use tadgs::components::{Deformed, GaussianParams, Opacity, Param, Position, Rotation, Scale};
 use tadgs::data::{Camera, Dataset};
 use tadgs::model::{NEAR_PLANE, project, project_backward, rotation_at, sigmoid};
+use tadgs::raster::Splat;
 use tadgs::raster::{Rasterizer, RenderOutput, SplatGrad};
 use tadgs::scene::SceneConfig;
-use tadgs::systems::splat::project_splat;
+use tadgs::systems::splat::{project_all, project_splat};
 use tadgs::train::Trainer;
 
 fn vec3(range: std::ops::Range<f32>) -> impl Strategy<Value = Vec3> {
@@ -171,6 +172,69 @@ proptest! {
                 mean, d.rotation, scale, &camera, Vec2::new(d_mean2d.0, d_mean2d.1), d_conic,
             );
             prop_assert!(g.mean.is_finite() && g.scale.is_finite() && all_finite(&g.quat), "{g:?}");
+        }
+    }
+}
+
+/// A value that breaks the arithmetic, or none.
+fn poison() -> impl Strategy<Value = Option<(usize, f32)>> {
+    prop_oneof![
+        6 => Just(None),
+        1 => (0usize..14, prop_oneof![Just(f32::NAN), Just(f32::INFINITY), Just(-f32::INFINITY), Just(0.0), Just(-0.0)])
+            .prop_map(Some),
+    ]
+}
+
+/// Every float of a splat as bits, and its visibility.
+fn splat_bits(s: &Splat) -> Vec<u32> {
+    let floats = [
+        s.mean2d.x, s.mean2d.y, s.conic[0], s.conic[1], s.conic[2], s.depth, s.opacity, s.color[0],
+        s.color[1], s.color[2], s.extent.x, s.extent.y,
+    ];
+    floats
+        .iter()
+        .map(|v| v.to_bits())
+        .chain([s.visible as u32])
+        .collect()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(128))]
+
+    /// The splatting stage's projection of many Gaussians at once (eight per vector, in
+    /// parallel chunks, a last group of fewer) gives every Gaussian the splat of the
+    /// one-at-a-time projection bit for bit, culled ones included, also for Gaussians with a
+    /// NaN, an infinity or a signed zero in any field.
+    #[test]
+    fn projection_of_many_equals_one_at_a_time(
+        camera in camera(),
+        raws in prop::collection::vec((raw_gaussian(), poison()), 1..40),
+        near_plane in prop_oneof![Just(0.01f32), Just(0.0), 0.0f32..2.0],
+        extra in 0usize..9,
+    ) {
+        let mut deformed_all: Vec<Deformed> = raws
+            .iter()
+            .map(|(raw, poison)| {
+                let mut d = deformed(raw, &camera);
+                if let Some((field, value)) = *poison {
+                    bytemuck::cast_mut::<Deformed, [f32; 14]>(&mut d)[field] = value;
+                }
+                d
+            })
+            .collect();
+        // More than one parallel chunk (4096 Gaussians), ending in a partial group.
+        let target = 4096 + 8 * raws.len() + extra;
+        let mut i = 0;
+        while deformed_all.len() < target {
+            deformed_all.push(deformed_all[i]);
+            i += 1;
+        }
+        let mut splats = vec![Splat::default(); 3];
+        project_all(&deformed_all, &camera, near_plane, &mut splats);
+        prop_assert_eq!(splats.len(), deformed_all.len());
+        for (k, (d, s)) in deformed_all.iter().zip(&splats).enumerate() {
+            let one = project_splat(d, &camera, near_plane);
+            prop_assert_eq!(splat_bits(s), splat_bits(&one), "Gaussian {}: {:?}", k, d);
         }
     }
 }

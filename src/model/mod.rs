@@ -11,6 +11,7 @@ pub mod adam;
 pub mod deform;
 pub mod exposure;
 pub mod project;
+pub mod project_lanes;
 pub mod sh;
 pub mod shared_motion;
 pub mod smoothness;
