@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use super::{Splat, TILE, prefetch};
+use super::{Splat, TILE, prefetch, simd_kernel};
 
 /// Per-tile, depth-sorted lists of splats, reused across frames.
 #[derive(Default)]
@@ -83,18 +83,19 @@ impl TileBins {
     /// cut into chunks of consecutive depths that count and scatter in parallel, each chunk
     /// from its own starting position in every tile.
     pub fn build(&mut self, splats: &[Splat], width: usize, height: usize) {
-        self.build_with(splats, width, height, &mut Vec::new(), |_| ());
+        self.build_with(splats, width, height, &mut Vec::<()>::new(), |_, _| ());
     }
 
-    /// [`TileBins::build`], and `out[s] = per_splat(&splats[s])` for every splat in the same
-    /// parallel pass over the splats, so that they are read from memory once.
-    pub(super) fn build_with<T: Send>(
+    /// [`TileBins::build`], and `per_chunk(chunk, out_chunk)` for consecutive chunks of the
+    /// splats and of `out` (resized to the splats), in parallel beside the depth sort, which
+    /// takes one thread only.
+    pub(super) fn build_with<T: Send + Clone + Default>(
         &mut self,
         splats: &[Splat],
         width: usize,
         height: usize,
         out: &mut Vec<T>,
-        per_splat: impl Fn(&Splat) -> T + Sync,
+        per_chunk: impl Fn(&[Splat], &mut [T]) + Sync,
     ) {
         self.tiles_x = width.div_ceil(TILE);
         self.tiles_y = height.div_ceil(TILE);
@@ -102,44 +103,37 @@ impl TileBins {
         let (tiles_x, tiles_y) = (self.tiles_x as f32, self.tiles_y as f32);
         self.positions_filled = false;
 
-        // Per splat, its tile rectangle and its sort key: depth bits (high) and index (low),
-        // so the index breaks ties. Depths are positive (beyond the near plane), so their bits
-        // order like the values. A splat that covers no tile gets the largest key, which
-        // sorts it last, where it is cut off.
+        // Per splat, its tile rectangle and its sort key (see `rects_and_keys`).
         let n = splats.len();
         self.rects.resize(n, [0; 4]);
         self.sorted_keys.resize(n, 0);
-        out.clear();
-        out.par_extend(
-            splats
-                .par_iter()
-                .zip(self.rects.par_iter_mut())
-                .zip(self.sorted_keys.par_iter_mut())
-                .enumerate()
-                .map(|(s, ((splat, rect), key))| {
-                    *rect = tile_rect(splat, tiles_x, tiles_y);
-                    *key = if rect[2] > rect[0] {
-                        ((splat.depth.to_bits() as u64) << 32) | s as u64
-                    } else {
-                        u64::MAX
-                    };
-                    per_splat(splat)
-                }),
+        // Resizing writes only new elements: the buffer keeps its length from frame to frame.
+        out.resize(n, T::default());
+        splats
+            .par_chunks(PASS_CHUNK)
+            .zip(self.rects.par_chunks_mut(PASS_CHUNK))
+            .zip(self.sorted_keys.par_chunks_mut(PASS_CHUNK))
+            .enumerate()
+            .for_each(|(c, ((splats, rects), keys))| {
+                rects_and_keys(splats, c * PASS_CHUNK, (tiles_x, tiles_y), rects, keys);
+            });
+
+        // The entries per splat and the sort by depth run on one thread: `per_chunk` runs
+        // beside them on the others.
+        let (offsets, rects) = (&mut self.splat_offsets, &self.rects);
+        let (keys, scratch) = (&mut self.sorted_keys, &mut self.sort_scratch);
+        let ((total, covering), ()) = rayon::join(
+            || {
+                let counts = entries_per_splat(rects, offsets);
+                radix_sort_by_high_half(keys, scratch);
+                counts
+            },
+            || {
+                out.par_chunks_mut(PASS_CHUNK)
+                    .zip(splats.par_chunks(PASS_CHUNK))
+                    .for_each(|(out, splats)| per_chunk(splats, out))
+            },
         );
-
-        // Entries per splat (splat-major order).
-        self.splat_offsets.clear();
-        self.splat_offsets.reserve(n + 1);
-        self.splat_offsets.push(0);
-        let (mut total, mut covering) = (0u32, 0);
-        for r in &self.rects {
-            let area = (r[2] - r[0]) * (r[3] - r[1]);
-            total += area;
-            covering += (area > 0) as usize;
-            self.splat_offsets.push(total);
-        }
-
-        radix_sort_by_high_half(&mut self.sorted_keys, &mut self.sort_scratch);
         self.sorted_keys.truncate(covering);
 
         // What the scatter reads of each splat, gathered into depth order once, so that the
@@ -269,6 +263,22 @@ impl TileBins {
     }
 }
 
+/// Fills `offsets` with the prefix sums of the entries of each splat (splat-major order, one
+/// more than splats); returns the entries in all and the splats that cover a tile.
+fn entries_per_splat(rects: &[[u32; 4]], offsets: &mut Vec<u32>) -> (u32, usize) {
+    offsets.clear();
+    offsets.reserve(rects.len() + 1);
+    offsets.push(0);
+    let (mut total, mut covering) = (0u32, 0);
+    for r in rects {
+        let area = (r[2] - r[0]) * (r[3] - r[1]);
+        total += area;
+        covering += (area > 0) as usize;
+        offsets.push(total);
+    }
+    (total, covering)
+}
+
 /// Keys per parallel task of the gather into depth order.
 const GATHER_CHUNK: usize = 16 * 1024;
 /// How many keys ahead that gather prefetches.
@@ -339,7 +349,35 @@ impl<T> Disjoint<T> {
     }
 }
 
+/// Splats per parallel task of the per-splat pass of the binning.
+const PASS_CHUNK: usize = 4096;
+
+simd_kernel! {
+    /// The tile rectangle and sort key of each splat of a chunk whose first splat has index
+    /// `first`: depth bits (high) and index (low), so the index breaks ties. Depths are
+    /// positive (beyond the near plane), so their bits order like the values. A splat that
+    /// covers no tile gets the largest key, which sorts it last, where it is cut off. (A
+    /// kernel of its own so that the rectangles' floors are instructions, not libm calls.)
+    fn rects_and_keys(
+        splats: &[Splat],
+        first: usize,
+        tiles: (f32, f32),
+        rects: &mut [[u32; 4]],
+        keys: &mut [u64],
+    ) {
+        for (s, ((splat, rect), key)) in splats.iter().zip(rects).zip(keys).enumerate() {
+            *rect = tile_rect(splat, tiles.0, tiles.1);
+            *key = if rect[2] > rect[0] {
+                ((splat.depth.to_bits() as u64) << 32) | (first + s) as u64
+            } else {
+                u64::MAX
+            };
+        }
+    }
+}
+
 /// The tiles a splat's screen box overlaps, as [x0, y0, x1, y1) in tile units.
+#[inline(always)]
 fn tile_rect(s: &Splat, tiles_x: f32, tiles_y: f32) -> [u32; 4] {
     if !s.visible {
         return [0; 4];

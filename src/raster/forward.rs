@@ -25,7 +25,7 @@ impl Rasterizer {
     /// Bins `splats` into depth-sorted tile lists (the first half of [`Rasterizer::forward`]).
     pub fn bin(&mut self, splats: &[Splat], width: usize, height: usize) {
         self.bins
-            .build_with(splats, width, height, &mut self.packed, Packed::new);
+            .build_with(splats, width, height, &mut self.packed, pack_chunk);
     }
 
     /// Blends the splats binned by the last [`Rasterizer::bin`] call (the second half of
@@ -174,6 +174,16 @@ impl Rasterizer {
                 counts
             })
             .reduce(PairCounts::default, |a, b| a + b)
+    }
+}
+
+simd_kernel! {
+    /// Packs a chunk of splats for the pixel loops (a kernel, so that the packing's arithmetic
+    /// gets the CPU's vector instruction set).
+    fn pack_chunk(splats: &[Splat], out: &mut [Packed]) {
+        for (splat, packed) in splats.iter().zip(out) {
+            *packed = Packed::new(splat);
+        }
     }
 }
 

@@ -96,6 +96,7 @@ struct Packed {
 pub(crate) const PACKED_SPLAT_BYTES: usize = size_of::<Packed>();
 
 impl Packed {
+    #[inline(always)]
     fn new(s: &Splat) -> Self {
         let [a, b, c] = s.conic;
         let min_power = min_power(s.opacity);
