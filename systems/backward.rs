@@ -14,17 +14,23 @@ use crate::model::deform::{
     polynomial_dtw_backward, rotation_at_backward, scale_at_backward, scale_velocity,
     temporal_opacity_backward, temporal_opacity_dtw_backward, window_factor,
 };
+use crate::model::project::NEAR_PLANE;
+#[cfg(doc)]
 use crate::model::project::project_backward;
+use crate::model::project_lanes::{
+    GaussianLanes, LANES, ProjectGradLanes, ViewTerms, project_backward_lanes,
+};
 use crate::model::sh::sh_to_rgb_backward;
 use crate::model::shared_motion::{MAX_MOTION_BASES, accumulate_bases_gradient, weights_gradient};
 use crate::model::warp::TimeWarp;
-use crate::raster::SplatGrad;
+use crate::raster::{Splat, SplatGrad};
 use crate::resources::{
     DeformedGrad, LossImage, Settings, SharedMotion, SplatBuffers, TrainState, ViewSample,
 };
 use crate::systems::deform::DeformInputs;
 use crate::systems::densify::ndc_gradient_norm;
 use crate::systems::prefetch::{RowsAhead, prefetch};
+use crate::systems::splat::gather_lanes;
 
 /// Back-propagates the image gradient through blending and projection to each slot's deformed
 /// Gaussian, and records the NDC-space 2D mean gradient norm used by densification. Blending
@@ -52,6 +58,7 @@ pub fn backward_splats(
     // One pass over the slots: the densification statistics' gradient sample, while the splat
     // gradients are at hand, and the chain rule through the projection.
     let half = glam::Vec2::new(0.5 * camera.width as f32, 0.5 * camera.height as f32);
+    let terms = ViewTerms::new(&camera, NEAR_PLANE);
     let SplatBuffers {
         splats,
         splat_grads,
@@ -82,39 +89,121 @@ pub fn backward_splats(
             )
             .into());
         }
+        /// Slots per parallel task (a multiple of [`LANES`]).
+        const CHUNK: usize = 256 * LANES;
         deformed
-            .par_iter()
-            .zip(splats[range.clone()].par_iter())
-            .zip(splat_grads[range.clone()].par_iter())
-            .zip(ndc_grad_norm[range.clone()].par_iter_mut())
-            .zip(deformed_grads[range.clone()].par_iter_mut())
-            .zip(gradient_reached[range].par_iter_mut())
+            .par_chunks(CHUNK)
+            .zip(splats[range.clone()].par_chunks(CHUNK))
+            .zip(splat_grads[range.clone()].par_chunks(CHUNK))
+            .zip(ndc_grad_norm[range.clone()].par_chunks_mut(CHUNK))
+            .zip(deformed_grads[range.clone()].par_chunks_mut(CHUNK))
+            .zip(gradient_reached[range].par_chunks_mut(CHUNK))
             .for_each(|(((((d, s), g), ndc_norm), grad), reached)| {
-                *ndc_norm = ndc_gradient_norm(s, g, half);
-                // Splats behind opaque pixels get no gradient: nothing to chain back.
-                if !s.visible || *g == SplatGrad::default() {
-                    (*grad, *reached) = (DeformedGrad::default(), false);
-                    return;
-                }
-                let p = project_backward(
-                    Vec3::from_array(d.mean),
-                    d.rotation,
-                    Vec3::from_array(d.scale),
-                    &camera,
-                    g.mean2d,
-                    g.conic,
-                );
-                *grad = DeformedGrad {
-                    mean: p.mean,
-                    rotation: p.quat,
-                    scale: p.scale,
-                    opacity: g.opacity,
-                    color: g.color,
-                };
-                *reached = *grad != DeformedGrad::default();
+                chain_projection(d, s, g, &terms, half, ndc_norm, grad, reached)
             });
     }
     Ok(())
+}
+
+crate::raster::simd_kernel! {
+    /// For a chunk of slots: the densification statistics' gradient sample, and each drawn
+    /// splat's gradient chained through the projection, eight Gaussians per vector
+    /// ([`project_backward_lanes`], the same values as [`project_backward`] one at a time);
+    /// splats that were not drawn or got no gradient get none and are not `reached`.
+    fn chain_projection(
+        deformed: &[Deformed],
+        splats: &[Splat],
+        grads: &[SplatGrad],
+        terms: &ViewTerms,
+        half: glam::Vec2,
+        ndc_norm: &mut [f32],
+        out: &mut [DeformedGrad],
+        reached: &mut [bool],
+    ) {
+        let mut lanes = GaussianLanes::default();
+        let mut d_mean2d = [[0f32; LANES]; 2];
+        let mut d_conic = [[0f32; LANES]; 3];
+        let mut chained = ProjectGradLanes::default();
+        for (k, group) in deformed.chunks(LANES).enumerate() {
+            let range = k * LANES..k * LANES + group.len();
+            let (splats, grads) = (&splats[range.clone()], &grads[range.clone()]);
+            let any_drawn = gather_gradient_lanes(splats, grads, &mut d_mean2d, &mut d_conic);
+            if any_drawn {
+                if group.len() < LANES {
+                    lanes = GaussianLanes::default();
+                }
+                gather_lanes(group, &mut lanes);
+                project_backward_lanes(&lanes, &d_mean2d, &d_conic, terms, &mut chained);
+            }
+            scatter_chained(
+                &chained,
+                splats,
+                grads,
+                half,
+                &mut ndc_norm[range.clone()],
+                &mut out[range.clone()],
+                &mut reached[range],
+            );
+        }
+    }
+}
+
+/// Whether a slot's splat was drawn and got a gradient: only then is there something to
+/// chain back (splats behind opaque pixels get none).
+#[inline(always)]
+fn chains(splat: &Splat, grad: &SplatGrad) -> bool {
+    splat.visible && *grad != SplatGrad::default()
+}
+
+/// Copies the 2D-mean and conic gradients of up to [`LANES`] slots into lanes (out of line,
+/// as [`gather_lanes`]); whether any of them [`chains`].
+#[inline(never)]
+fn gather_gradient_lanes(
+    splats: &[Splat],
+    grads: &[SplatGrad],
+    d_mean2d: &mut [[f32; LANES]; 2],
+    d_conic: &mut [[f32; LANES]; 3],
+) -> bool {
+    let mut any = false;
+    for (i, (s, g)) in splats.iter().zip(grads).enumerate() {
+        d_mean2d[0][i] = g.mean2d.x;
+        d_mean2d[1][i] = g.mean2d.y;
+        for (lanes, &value) in d_conic.iter_mut().zip(&g.conic) {
+            lanes[i] = value;
+        }
+        any |= chains(s, g);
+    }
+    any
+}
+
+/// Writes the chained gradients of up to [`LANES`] slots (out of line, as [`gather_lanes`]).
+#[inline(never)]
+fn scatter_chained(
+    chained: &ProjectGradLanes,
+    splats: &[Splat],
+    grads: &[SplatGrad],
+    half: glam::Vec2,
+    ndc_norm: &mut [f32],
+    out: &mut [DeformedGrad],
+    reached: &mut [bool],
+) {
+    let slots = splats.iter().zip(grads).zip(ndc_norm).zip(out).zip(reached);
+    for (i, ((((s, g), ndc_norm), grad), reached)) in slots.enumerate() {
+        *ndc_norm = ndc_gradient_norm(s, g, half);
+        if !chains(s, g) {
+            (*grad, *reached) = (DeformedGrad::default(), false);
+            continue;
+        }
+        let lane = |v: &[[f32; LANES]; 3]| Vec3::new(v[0][i], v[1][i], v[2][i]);
+        *grad = DeformedGrad {
+            mean: lane(&chained.mean),
+            rotation: chained.quat.map(|q| q[i]),
+            scale: lane(&chained.scale),
+            opacity: g.opacity,
+            color: g.color,
+        };
+        *reached = *grad != DeformedGrad::default();
+    }
 }
 
 /// The gradient components written by the backward pass.

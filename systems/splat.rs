@@ -132,7 +132,7 @@ crate::raster::simd_kernel! {
 /// kernel then loads each lane array as one vector; inlined, the compiler would forward the
 /// scalars into the arithmetic and leave it scalar.
 #[inline(never)]
-fn gather_lanes(group: &[Deformed], lanes: &mut GaussianLanes) {
+pub(crate) fn gather_lanes(group: &[Deformed], lanes: &mut GaussianLanes) {
     for (i, d) in group.iter().enumerate() {
         for k in 0..3 {
             lanes.mean[k][i] = d.mean[k];
