@@ -5,7 +5,7 @@
 //! The splatting stage projects every Gaussian of every view; one at a time, most of its time
 //! went on scalar 3×3 matrix arithmetic. Written as plain loops over eight-lane arrays, each
 //! step becomes one vector instruction in a kernel compiled for AVX2 or AVX-512 (see
-//! [`crate::raster::simd_kernel`]); only the logarithm of the screen box stays a call per lane.
+//! `crate::raster::simd_kernel!`); only the logarithm of the screen box stays a call per lane.
 //!
 //! [`project_backward_lanes`] is [`project_backward`](super::project::project_backward) the
 //! same way, for the backward stage's chain rule through the projection.
